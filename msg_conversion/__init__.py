@@ -1,0 +1,1 @@
+"""Conversions between ROS messages (rclpy or rosbags classes) and numpy / shape_detector types."""

@@ -1,0 +1,68 @@
+"""The ``shape-detector`` command: one entry point, one module per subcommand.
+
+Each subcommand lives in its own module exposing ``configure_parser(parser)`` and
+``main(args) -> int``; modules are imported only when their subcommand runs, so
+``shape-detector --help`` stays fast and torch is not loaded for bag work that needs none.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from pathlib import Path
+
+#: subcommand -> (module, one-line help)
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("shape_detector.demo", "run the detector on a bag and write an output bag + PNG overlay"),
+    "replay": ("shape_detector.replay", "run the detector over a recorded bag, or --play it live"),
+    "synth": ("shape_detector.synth.cli", "generate RGB-D scenes: dataset shards, sample bags, figures"),
+    "train": ("shape_detector.training.cli", "train the frustum network on generated data"),
+    "evaluate": ("shape_detector.evaluation.cli", "evaluate weights on a held-out generated set"),
+    "bench": ("shape_detector.bench", "benchmarks that print numbers (synth, network, proposals, node)"),
+    "config-path": ("shape_detector.cli", "print the path of a packaged config file"),
+}
+
+
+def configure_parser(p: argparse.ArgumentParser) -> None:
+    p.add_argument("name", nargs="?", default="fastdds_shm.xml", help="file name under the package config/")
+
+
+def main_config_path(args: argparse.Namespace) -> int:
+    path = Path(__file__).resolve().parent / "config" / args.name
+    if not path.is_file():
+        print(f"no packaged config file {args.name!r} (in {path.parent})", file=sys.stderr)
+        return 2
+    print(path)
+    return 0
+
+
+def _usage() -> str:
+    lines = ["usage: shape-detector COMMAND [options]   (shape-detector COMMAND --help)", "", "commands:"]
+    lines += [f"  {name:<12} {help_}" for name, (_, help_) in SUBCOMMANDS.items()]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Dispatch ``shape-detector COMMAND ...``; returns the process exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(_usage())
+        return 0 if argv else 2
+    name, rest = argv[0], argv[1:]
+    if name not in SUBCOMMANDS:
+        print(f"shape-detector: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
+        return 2
+    module_name, help_ = SUBCOMMANDS[name]
+    parser = argparse.ArgumentParser(prog=f"shape-detector {name}", description=help_)
+    if name == "config-path":
+        configure_parser(parser)
+        return main_config_path(parser.parse_args(rest))
+    module = importlib.import_module(module_name)
+    module.configure_parser(parser)
+    args = parser.parse_args(rest)
+    return int(module.main(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

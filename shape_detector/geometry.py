@@ -1,0 +1,121 @@
+"""Pure-numpy geometry: gravity-aligned frames, yaw-only boxes, corners.
+
+Frames
+------
+* **camera** (ROS optical): x right, y down, z forward, metres.
+* **upright** ``U`` (built from the gravity-up vector ``up`` given in the camera frame):
+  z = up, y = the camera's forward axis projected onto the horizontal plane, x = y x z
+  (to the right). Origin at the camera centre. For a level camera ``up = (0, -1, 0)``
+  and ``U`` is SUN RGB-D's upright depth frame (x right, y forward, z up).
+  ``p_cam = R_cu @ p_U`` with ``R_cu = upright_rotation(up)``.
+* **frustum** ``F``: ``U`` rotated about z by the frustum angle ``phi`` so that the 2D
+  box's centre ray points along +y (see :mod:`shape_detector.frustum`).
+
+A yaw-only box has heading ``theta``: its x axis in ``U`` is ``(cos theta, sin theta, 0)``,
+its z axis is up; its rotation in the camera frame is ``R_cu @ rot_z(theta)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+DEFAULT_UP = np.array([0.0, -1.0, 0.0])
+
+
+def normalize(v: np.ndarray, eps: float = 1e-12) -> np.ndarray:
+    """``v`` scaled to unit length along its last axis."""
+    v = np.asarray(v, dtype=np.float64)
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.maximum(n, eps)
+
+
+def rot_z(theta: float | np.ndarray) -> np.ndarray:
+    """Rotation by ``theta`` radians about +z; shape (3,3) or (...,3,3) for arrays."""
+    t = np.asarray(theta, dtype=np.float64)
+    c, s = np.cos(t), np.sin(t)
+    z, o = np.zeros_like(t), np.ones_like(t)
+    return np.stack(
+        [np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2
+    )
+
+
+def upright_rotation(up: np.ndarray | None) -> np.ndarray:
+    """``R_cu`` (3,3): columns are the upright frame's x, y, z axes in camera coordinates.
+
+    ``up`` is the gravity-up vector in the camera optical frame (any length; None means
+    level camera, ``(0, -1, 0)``). Degenerate when the camera looks straight up or down;
+    then the camera's -y axis replaces its forward axis as the reference.
+    """
+    u = normalize(DEFAULT_UP if up is None else np.asarray(up, dtype=np.float64).reshape(3))
+    fwd = np.array([0.0, 0.0, 1.0])
+    y = fwd - u * (fwd @ u)
+    if np.linalg.norm(y) < 1e-6:
+        ref = np.array([0.0, -1.0, 0.0])
+        y = ref - u * (ref @ u)
+    y = normalize(y)
+    x = np.cross(y, u)
+    return np.stack([x, y, u], axis=1)
+
+
+def heading_to_rotation(theta: float, up: np.ndarray | None) -> np.ndarray:
+    """Camera-frame rotation (3,3) of a yaw-only box with heading ``theta`` (rad) in ``U``."""
+    return upright_rotation(up) @ rot_z(theta)
+
+
+def rotation_to_heading(rotation: np.ndarray, up: np.ndarray | None) -> float:
+    """Heading (rad, in (-pi, pi]) of a box's x axis in the upright frame built from ``up``."""
+    x_u = upright_rotation(up).T @ np.asarray(rotation, dtype=np.float64)[:, 0]
+    return float(np.arctan2(x_u[1], x_u[0]))
+
+
+def wrap_angle(a: float | np.ndarray) -> float | np.ndarray:
+    """Angle(s) wrapped into [-pi, pi)."""
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+#: unit-cube corner signs, ordered: bottom face (z=-) counter-clockwise, then top face.
+_CORNER_SIGNS = np.array(
+    [
+        [1, 1, -1],
+        [-1, 1, -1],
+        [-1, -1, -1],
+        [1, -1, -1],
+        [1, 1, 1],
+        [-1, 1, 1],
+        [-1, -1, 1],
+        [1, -1, 1],
+    ],
+    dtype=np.float64,
+)
+
+#: the 12 edges of a box as pairs of indices into :func:`box_corners`' output.
+BOX_EDGES: tuple[tuple[int, int], ...] = (
+    (0, 1), (1, 2), (2, 3), (3, 0),
+    (4, 5), (5, 6), (6, 7), (7, 4),
+    (0, 4), (1, 5), (2, 6), (3, 7),
+)
+
+
+def box_corners(center: np.ndarray, size: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """The 8 corners (8,3) of an oriented box (same frame as ``center``), see ``_CORNER_SIGNS``."""
+    half = 0.5 * np.asarray(size, dtype=np.float64).reshape(1, 3)
+    local = _CORNER_SIGNS * half
+    return local @ np.asarray(rotation, dtype=np.float64).T + np.asarray(center).reshape(1, 3)
+
+
+def points_in_box(
+    points: np.ndarray, center: np.ndarray, size: np.ndarray, rotation: np.ndarray, margin: float = 0.0
+) -> np.ndarray:
+    """Boolean mask (N,) of ``points`` (N,3) inside the oriented box grown by ``margin`` m."""
+    local = (np.asarray(points, dtype=np.float64) - np.asarray(center).reshape(1, 3)) @ np.asarray(
+        rotation, dtype=np.float64
+    )
+    half = 0.5 * np.asarray(size, dtype=np.float64).reshape(1, 3) + margin
+    return np.all(np.abs(local) <= half, axis=1)
+
+
+def project_points(points: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Pixel coordinates (N,2) of camera-frame points (N,3) with z > 0 (pixel-centre convention)."""
+    p = np.asarray(points, dtype=np.float64)
+    uvw = p @ np.asarray(K, dtype=np.float64).T
+    return uvw[:, :2] / uvw[:, 2:3]

@@ -1,0 +1,170 @@
+"""Plain data types shared by every stage of the pipeline.
+
+Frames and units: everything 3D is in the **camera optical frame** (x right, y down,
+z forward) in metres unless a docstring says otherwise; stamps are integer
+nanoseconds; 2D boxes are ``(x1, y1, x2, y2)`` pixel *edges* (``x2 = last column + 1``,
+so a box's width is ``x2 - x1``).
+
+A box's ``rotation`` is a 3x3 matrix whose columns are the box's x, y, z axes in the
+camera frame; ``size = (l, w, h)`` are the full extents along those columns. For
+furniture the z column is gravity-up (yaw about gravity only) and x is the object's
+facing (heading) direction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+Box2D = tuple[float, float, float, float]
+
+
+def _vec(a: Any, n: int = 3) -> np.ndarray:
+    out = np.asarray(a, dtype=np.float64).reshape(n)
+    return out
+
+
+@dataclass
+class Cuboid:
+    """An oriented cuboid: centre (3,) m, full size (3,) m, rotation (3,3) columns = axes."""
+
+    center: np.ndarray
+    size: np.ndarray
+    rotation: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.center = _vec(self.center)
+        self.size = _vec(self.size)
+        self.rotation = np.asarray(self.rotation, dtype=np.float64).reshape(3, 3)
+
+    def to_dict(self) -> dict[str, list]:
+        return {
+            "center": self.center.tolist(),
+            "size": self.size.tolist(),
+            "rotation": self.rotation.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Cuboid":
+        return cls(np.array(d["center"]), np.array(d["size"]), np.array(d["rotation"]))
+
+    def transformed(self, R: np.ndarray, t: np.ndarray) -> "Cuboid":
+        """This cuboid under ``p' = R p + t``."""
+        return Cuboid(R @ self.center + t, self.size.copy(), R @ self.rotation)
+
+
+@dataclass
+class Object3D:
+    """One detected object, camera optical frame, metres.
+
+    ``score`` is the detector's confidence in [0, 1]; ``box2d`` the 2D proposal it came
+    from; ``primitives`` the predicted cuboid shape abstraction (camera frame).
+    """
+
+    class_name: str
+    score: float
+    center: np.ndarray
+    size: np.ndarray
+    rotation: np.ndarray
+    box2d: Box2D = (0.0, 0.0, 0.0, 0.0)
+    primitives: list[Cuboid] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.center = _vec(self.center)
+        self.size = _vec(self.size)
+        self.rotation = np.asarray(self.rotation, dtype=np.float64).reshape(3, 3)
+
+    @property
+    def cuboid(self) -> Cuboid:
+        return Cuboid(self.center, self.size, self.rotation)
+
+
+@dataclass
+class GTObject:
+    """Ground truth for one object of a generated (or loaded) frame. Camera frame, metres.
+
+    ``heading`` is the yaw of the box x axis in the upright frame (see
+    :func:`shape_detector.geometry.upright_rotation`), radians; ``parts`` the exact cuboid
+    parts the object is built from (shape ground truth; empty when unknown);
+    ``visible_fraction`` the share of the object's projected pixels that are not occluded
+    (truncation by the image border counts as not visible); ``instance_id`` its value in
+    the frame's instance mask.
+    """
+
+    class_name: str
+    box2d: Box2D
+    center: np.ndarray
+    size: np.ndarray
+    rotation: np.ndarray
+    heading: float = 0.0
+    parts: list[Cuboid] = field(default_factory=list)
+    visible_fraction: float = 1.0
+    instance_id: int = 0
+
+    def __post_init__(self) -> None:
+        self.center = _vec(self.center)
+        self.size = _vec(self.size)
+        self.rotation = np.asarray(self.rotation, dtype=np.float64).reshape(3, 3)
+        self.box2d = tuple(float(v) for v in self.box2d)  # type: ignore[assignment]
+
+    @property
+    def cuboid(self) -> Cuboid:
+        return Cuboid(self.center, self.size, self.rotation)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "class_name": self.class_name,
+            "box2d": list(self.box2d),
+            "center": self.center.tolist(),
+            "size": self.size.tolist(),
+            "rotation": self.rotation.tolist(),
+            "heading": float(self.heading),
+            "parts": [p.to_dict() for p in self.parts],
+            "visible_fraction": float(self.visible_fraction),
+            "instance_id": int(self.instance_id),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "GTObject":
+        return cls(
+            class_name=d["class_name"],
+            box2d=tuple(d["box2d"]),
+            center=np.array(d["center"]),
+            size=np.array(d["size"]),
+            rotation=np.array(d["rotation"]),
+            heading=float(d.get("heading", 0.0)),
+            parts=[Cuboid.from_dict(p) for p in d.get("parts", [])],
+            visible_fraction=float(d.get("visible_fraction", 1.0)),
+            instance_id=int(d.get("instance_id", 0)),
+        )
+
+
+@dataclass
+class Frame:
+    """One RGB-D frame with its calibration.
+
+    ``rgb``: HxWx3 uint8 RGB. ``depth``: HxW float32 metres, registered to ``rgb``,
+    NaN where invalid. ``K``: 3x3 intrinsics of ``rgb``. ``up``: gravity-up unit vector
+    in the camera optical frame, or None when unknown. ``objects``: ground truth when the
+    frame comes from the generator or a labelled dataset; ``instance_mask``: HxW int32,
+    0 = no labelled object, ``objects[i].instance_id`` otherwise.
+    """
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    K: np.ndarray
+    up: np.ndarray | None = None
+    stamp_ns: int = 0
+    frame_id: str = "camera_color_optical_frame"
+    objects: list[GTObject] = field(default_factory=list)
+    instance_mask: np.ndarray | None = None
+
+    @property
+    def height(self) -> int:
+        return int(self.depth.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.depth.shape[1])

@@ -1,0 +1,33 @@
+"""Test-wide settings: ROS traffic stays on loopback / shared memory, one domain per run."""
+
+from __future__ import annotations
+
+import os
+import random
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# Set before anything imports rclpy; subprocesses inherit them.
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid()).randint(100, 200)))
+os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = str(ROOT / "shape_detector" / "config" / "fastdds_shm.xml")
+os.environ.setdefault("RCUTILS_LOGGING_BUFFERED_STREAM", "1")
+
+
+@pytest.fixture(scope="session")
+def sample_bag() -> Path:
+    """The committed sample bag (rosbag2, MCAP storage)."""
+    return ROOT / "bags" / "sample"
+
+
+@pytest.fixture(scope="session")
+def ros_context():
+    """An initialised rclpy context for the session (shut down at the end)."""
+    rclpy = pytest.importorskip("rclpy")
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    yield ctx
+    rclpy.shutdown(context=ctx)
