@@ -149,7 +149,8 @@ class Frame:
     NaN where invalid. ``K``: 3x3 intrinsics of ``rgb``. ``up``: gravity-up unit vector
     in the camera optical frame, or None when unknown. ``objects``: ground truth when the
     frame comes from the generator or a labelled dataset; ``instance_mask``: HxW int32,
-    0 = no labelled object, ``objects[i].instance_id`` otherwise.
+    0 = no labelled object, ``objects[i].instance_id`` otherwise. ``clutter_boxes``: visible
+    2D boxes of unlabelled clutter (negatives for training the classification head).
     """
 
     rgb: np.ndarray
@@ -160,6 +161,7 @@ class Frame:
     frame_id: str = "camera_color_optical_frame"
     objects: list[GTObject] = field(default_factory=list)
     instance_mask: np.ndarray | None = None
+    clutter_boxes: list[Box2D] = field(default_factory=list)
 
     @property
     def height(self) -> int:
