@@ -110,10 +110,8 @@ def extract_frustum(
     n = vv.size
     if n == 0:
         return empty
-    if rng is None:
-        sel = np.linspace(0, n - 1, num_points).round().astype(np.int64) if n != num_points else np.arange(n)
-        if n > num_points:
-            sel = np.unique(sel) if False else sel
+    if rng is None:  # evenly spaced: distinct pixels when n >= num_points, repeats otherwise
+        sel = np.linspace(0, n - 1, num_points).round().astype(np.int64)
     else:
         sel = rng.choice(n, num_points, replace=n < num_points)
     vv = vv[sel] + y1

@@ -1,0 +1,101 @@
+"""``shape-detector bench``: benchmarks that print numbers (never run by the unit tests).
+
+Targets: ``synth`` (scene generator frames/s), ``network`` (batched forward ms/frame for 1,
+5, 10 objects), ``proposals`` (gravity + geometric proposals ms per VGA frame),
+``pipeline`` (whole ``ShapeDetector.detect`` on generated VGA frames), ``node`` (ROS node
+frames/s and stamp-to-publish latency on the sample bag), ``all``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+TARGETS = ("synth", "network", "proposals", "pipeline", "node")
+
+
+def configure_parser(p: argparse.ArgumentParser) -> None:
+    p.add_argument("target", choices=TARGETS + ("all",), help="what to time")
+    p.add_argument("--frames", type=int, default=20, help="frames to time (synth, proposals, pipeline)")
+    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
+    p.add_argument("--weights", default=None, help="weights for network/pipeline/node (default: packaged)")
+    p.add_argument("--bag", default=str(Path(__file__).resolve().parents[1] / "bags" / "sample"))
+    p.add_argument("--json", default=None, help="also write the results here")
+
+
+def bench_pipeline(frames: int = 20, weights: str | None = None, threads: int | None = None) -> dict:
+    """Median / p95 ms per VGA frame of ``ShapeDetector.detect`` with GT boxes and with built-in proposals."""
+    import torch
+
+    from .detector import ShapeDetector
+    from .synth.generate import generate_frame
+
+    if threads:
+        torch.set_num_threads(threads)
+    det = ShapeDetector(weights=weights, score_threshold=0.0)
+    scenes = [generate_frame(10_000 + i) for i in range(frames)]
+    out: dict[str, dict] = {}
+    for mode in ("gt_boxes", "builtin"):
+        times, parts, nobj = [], [], []
+        det.detect(scenes[0].rgb, scenes[0].depth, scenes[0].K)  # warm-up
+        for f in scenes:
+            boxes = [(*o.box2d, o.class_name) for o in f.objects] if mode == "gt_boxes" else None
+            t0 = time.perf_counter()
+            det.detect(f.rgb, f.depth, f.K, boxes2d=boxes)
+            times.append(1e3 * (time.perf_counter() - t0))
+            parts.append(det.last_timing)
+            nobj.append(det.last_timing.get("num_frustums", 0))
+        res = {
+            "ms_p50": float(np.median(times)),
+            "ms_p95": float(np.percentile(times, 95)),
+            "fps_p50": float(1e3 / np.median(times)),
+            "frustums_per_frame": float(np.mean(nobj)),
+        }
+        for key in ("proposals_ms", "frustums_ms", "network_ms", "post_ms"):
+            res[key + "_p50"] = float(np.median([p.get(key, 0.0) for p in parts]))
+        out[mode] = res
+        print(
+            f"pipeline[{mode}]: {res['ms_p50']:.1f} ms/frame p50 ({res['fps_p50']:.1f} fps), p95 {res['ms_p95']:.1f} ms, "
+            f"{res['frustums_per_frame']:.1f} frustums/frame; proposals {res['proposals_ms_p50']:.1f} ms, "
+            f"frustums {res['frustums_ms_p50']:.1f} ms, network {res['network_ms_p50']:.1f} ms, post {res['post_ms_p50']:.1f} ms",
+            flush=True,
+        )
+    return out
+
+
+def run_target(target: str, args: argparse.Namespace) -> dict:
+    """Run one benchmark and return its numbers."""
+    if target == "synth":
+        from .synth.bench import bench_synth
+
+        return bench_synth(frames=args.frames)
+    if target == "network":
+        from .model.bench import bench_network
+
+        return bench_network(weights=args.weights, threads=args.threads)
+    if target == "proposals":
+        from .proposals.bench import bench_proposals
+
+        return bench_proposals(frames=args.frames)
+    if target == "pipeline":
+        return bench_pipeline(frames=args.frames, weights=args.weights, threads=args.threads)
+    if target == "node":
+        from .node_bench import bench_node
+
+        return bench_node(args.bag, weights=args.weights)
+    raise ValueError(target)
+
+
+def main(args: argparse.Namespace) -> int:
+    targets = TARGETS if args.target == "all" else (args.target,)
+    results = {}
+    for t in targets:
+        print(f"== bench {t}", flush=True)
+        results[t] = run_target(t, args)
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=2, default=float))
+    return 0

@@ -1,0 +1,188 @@
+"""``ShapeDetector``: the one public entry point that glues the pipeline together.
+
+rgb + depth + K  ->  gravity ``up``  ->  2D proposals (given or built-in)  ->  frustums
+->  batched network forward  ->  :class:`~shape_detector.types.Object3D` list (+ 3D NMS).
+
+All outputs are in the camera optical frame (x right, y down, z forward), metres.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .classes import CLASS_TO_ID
+from .frustum import backproject, extract_frustum
+from .inputs import normalize_inputs
+from .nms import nms_3d
+from .types import Object3D
+
+DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "default.pt"
+
+
+def _parse_box(box: Any) -> tuple[tuple[float, float, float, float], str | None]:
+    """(x1, y1, x2, y2[, class_name]) or an object with ``box2d``/``class_name`` attributes."""
+    if hasattr(box, "box2d"):
+        coords, name = box.box2d, getattr(box, "class_name", None)
+    else:
+        seq = list(box)
+        if len(seq) < 4:
+            raise ValueError(f"a 2D box needs (x1, y1, x2, y2[, class_name]), got {box!r}")
+        coords, name = seq[:4], (seq[4] if len(seq) > 4 else None)
+    x1, y1, x2, y2 = (float(v) for v in coords)
+    if not np.all(np.isfinite([x1, y1, x2, y2])):
+        raise ValueError(f"2D box has non-finite coordinates: {box!r}")
+    return (x1, y1, x2, y2), (name if isinstance(name, str) and name in CLASS_TO_ID else None)
+
+
+class ShapeDetector:
+    """Detect furniture with amodal 3D boxes and cuboid primitives in one RGB-D frame.
+
+    ``weights``: a checkpoint written by ``shape-detector train`` (default: the packaged
+    weights). ``device``: 'cpu', 'cuda' or 'auto'. ``proposals``: 'geometric' (built-in,
+    class-agnostic 3D-geometry proposals) or 'none' (then ``detect`` needs ``boxes2d``).
+    ``score_threshold`` drops low-confidence objects; ``max_objects`` caps frustums per
+    frame (highest-score proposals first); ``nms_iou`` is the 3D IoU above which the
+    lower-scoring of two detections is suppressed.
+    """
+
+    def __init__(
+        self,
+        weights: str | Path | None = None,
+        device: str = "cpu",
+        score_threshold: float = 0.3,
+        max_objects: int = 20,
+        proposals: str = "geometric",
+        nms_iou: float = 0.25,
+        num_threads: int | None = None,
+    ) -> None:
+        from .model.predictor import FrustumPredictor
+
+        path = Path(weights) if weights is not None else DEFAULT_WEIGHTS
+        if not path.is_file():
+            raise FileNotFoundError(
+                f"weights file {path} not found (train some with `shape-detector train`, "
+                "or pass weights=...)"
+            )
+        self.weights = path
+        self.predictor = FrustumPredictor(path, device=device, num_threads=num_threads)
+        self.num_points = int(self.predictor.config.num_points)
+        self.score_threshold = float(score_threshold)
+        self.max_objects = int(max_objects)
+        self.nms_iou = float(nms_iou)
+        self.proposal_source = proposals
+        self._proposer = None
+        if proposals not in ("geometric", "none"):
+            raise ValueError(f"proposals must be 'geometric' or 'none', got {proposals!r}")
+        self.last_timing: dict[str, float] = {}
+        self.last_up: np.ndarray | None = None
+        self.last_up_confidence: float = 0.0
+
+    # -- stages -----------------------------------------------------------------------
+    def _get_proposer(self):
+        if self._proposer is None:
+            from .proposals.geometric import GeometricProposer
+
+            self._proposer = GeometricProposer()
+        return self._proposer
+
+    def _gravity_and_proposals(
+        self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, up: np.ndarray | None, need_boxes: bool
+    ) -> tuple[np.ndarray, float, list[tuple[tuple[float, float, float, float], str | None, float]]]:
+        """``up`` (given or estimated), its confidence, and built-in proposals if needed."""
+        if need_boxes:
+            if self.proposal_source == "none":
+                raise ValueError("detect() needs boxes2d when the detector was built with proposals='none'")
+            gravity, props = self._get_proposer()(depth, K, up=up, rgb=rgb)
+            boxes = [(tuple(p.box2d), p.class_name, float(p.score)) for p in props]
+            if up is not None:
+                return np.asarray(up, dtype=np.float64), 1.0, boxes
+            return np.asarray(gravity.up, dtype=np.float64), float(gravity.confidence), boxes
+        if up is not None:
+            return np.asarray(up, dtype=np.float64), 1.0, []
+        from .gravity import estimate_up
+
+        gravity = estimate_up(depth, K)
+        return np.asarray(gravity.up, dtype=np.float64), float(gravity.confidence), []
+
+    # -- public -----------------------------------------------------------------------
+    def detect(
+        self,
+        rgb: np.ndarray,
+        depth: np.ndarray,
+        K: np.ndarray,
+        boxes2d: Sequence[Any] | None = None,
+        up: np.ndarray | None = None,
+        depth_scale: float | None = None,
+    ) -> list[Object3D]:
+        """Objects in one frame, camera optical frame, metres, sorted by score.
+
+        ``rgb`` HxWx3 uint8 RGB; ``depth`` HxW float32 metres (0/NaN invalid) or uint16
+        millimetres; ``K`` 3x3 intrinsics of both; ``boxes2d`` optional list of
+        ``(x1, y1, x2, y2, class_name)`` pixel boxes used instead of the built-in proposals
+        (class_name may be None or omitted: then the network classifies); ``up`` optional
+        gravity-up unit vector in the camera frame (estimated from the depth when None).
+        """
+        t0 = time.perf_counter()
+        rgb, depth, K = normalize_inputs(rgb, depth, K, depth_scale)
+        t1 = time.perf_counter()
+        if up is not None:
+            up = np.asarray(up, dtype=np.float64).reshape(3)
+            if not np.all(np.isfinite(up)) or np.linalg.norm(up) < 1e-6:
+                raise ValueError(f"up must be a finite non-zero 3-vector, got {up}")
+            up = up / np.linalg.norm(up)
+        up_used, up_conf, built_in = self._gravity_and_proposals(rgb, depth, K, up, boxes2d is None)
+        self.last_up, self.last_up_confidence = up_used, up_conf
+        if boxes2d is not None:
+            parsed = [(*_parse_box(b), 1.0) for b in boxes2d]
+        else:
+            parsed = sorted(built_in, key=lambda p: -p[2])
+        parsed = parsed[: self.max_objects]
+        t2 = time.perf_counter()
+        points_cam = backproject(depth, K) if parsed else None
+        frustums = [
+            extract_frustum(rgb, depth, K, box, self.num_points, up=up_used, points_cam=points_cam)
+            for box, _, _ in parsed
+        ]
+        keep = [i for i, f in enumerate(frustums) if f.valid > 0]
+        t3 = time.perf_counter()
+        preds = self.predictor.predict(
+            [frustums[i] for i in keep],
+            [CLASS_TO_ID[parsed[i][1]] if parsed[i][1] is not None else None for i in keep],
+        )
+        t4 = time.perf_counter()
+        objects: list[Object3D] = []
+        for i, pred in zip(keep, preds):
+            if pred.class_name not in CLASS_TO_ID or pred.score < self.score_threshold:
+                continue
+            objects.append(
+                Object3D(
+                    class_name=pred.class_name,
+                    score=float(pred.score),
+                    center=pred.center,
+                    size=pred.size,
+                    rotation=pred.rotation,
+                    box2d=parsed[i][0],
+                    primitives=list(pred.primitives),
+                )
+            )
+        objects = nms_3d(objects, self.nms_iou)
+        t5 = time.perf_counter()
+        self.last_timing = {
+            "inputs_ms": 1e3 * (t1 - t0),
+            "proposals_ms": 1e3 * (t2 - t1),
+            "frustums_ms": 1e3 * (t3 - t2),
+            "network_ms": 1e3 * (t4 - t3),
+            "post_ms": 1e3 * (t5 - t4),
+            "total_ms": 1e3 * (t5 - t0),
+            "num_frustums": float(len(keep)),
+        }
+        return objects
+
+    def detect_frame(self, frame: Any, boxes2d: Sequence[Any] | None = None, use_gt_up: bool = False) -> list[Object3D]:
+        """:meth:`detect` on a :class:`~shape_detector.types.Frame` (``use_gt_up`` passes ``frame.up``)."""
+        return self.detect(frame.rgb, frame.depth, frame.K, boxes2d=boxes2d, up=frame.up if use_gt_up else None)
