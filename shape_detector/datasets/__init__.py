@@ -1,0 +1,1 @@
+"""Loaders for public RGB-D dataset formats."""
