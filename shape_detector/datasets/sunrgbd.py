@@ -37,8 +37,12 @@ def read_calib(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def upright_to_optical(rtilt: np.ndarray) -> np.ndarray:
-    """Rotation taking upright-depth coordinates to the camera optical frame."""
-    return DEPTH_TO_OPTICAL @ rtilt.T
+    """Rotation taking upright-depth coordinates to the camera optical frame.
+
+    Rtilt is stored to 5 digits, so it is first projected onto the nearest rotation (SVD).
+    """
+    u, _, vt = np.linalg.svd(rtilt)
+    return DEPTH_TO_OPTICAL @ (u @ vt).T
 
 
 def read_labels(path: Path, R_ou: np.ndarray, up: np.ndarray) -> list[GTObject]:
@@ -97,7 +101,6 @@ def load_frame(root: str | Path, index: int | str) -> Frame:
     K[1, 2] -= 1.0
     R_ou = upright_to_optical(rtilt)
     up = R_ou @ np.array([0.0, 0.0, 1.0])
-    up /= np.linalg.norm(up)  # Rtilt is stored to 5 digits
     pts_u = loadmat(str(root / "depth" / f"{name}.mat"))["instance"][:, :3].astype(np.float64)
     depth = points_to_depth(pts_u @ R_ou.T, K, rgb.shape[1], rgb.shape[0])
     objects = read_labels(root / "label" / f"{name}.txt", R_ou, up)
