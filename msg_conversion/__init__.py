@@ -10,7 +10,8 @@ from __future__ import annotations
 from .camera_info import K_to_camera_info, camera_info_distortion, camera_info_size, camera_info_to_K, scale_K
 from .detections import (
     VisionMsgsUnavailableError,
-    detection2d_array_to_boxes, detection3d_array_to_objects,
+    detection2d_array_to_boxes,
+    detection3d_array_to_objects,
     objects_to_detection3d_array,
 )
 from .image import (
