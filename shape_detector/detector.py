@@ -168,9 +168,13 @@ class ShapeDetector:
                     rotation=pred.rotation,
                     box2d=parsed[i][0],
                     primitives=list(pred.primitives),
+                    pixel_index=frustums[i].pixel_index,
+                    seg_labels=np.asarray(pred.seg_prob) > 0.5,
                 )
             )
-        objects = nms_3d(objects, self.nms_iou)
+        if boxes2d is None:  # built-in proposals overlap by design; given boxes are one per object
+            objects = nms_3d(objects, self.nms_iou)
+        objects.sort(key=lambda o: -o.score)
         t5 = time.perf_counter()
         self.last_timing = {
             "inputs_ms": 1e3 * (t1 - t0),

@@ -70,6 +70,10 @@ class Object3D:
     rotation: np.ndarray
     box2d: Box2D = (0.0, 0.0, 0.0, 0.0)
     primitives: list[Cuboid] = field(default_factory=list)
+    #: diagnostics: flat pixel indices (v * W + u) of the frustum's sampled points and the
+    #: network's foreground decision for each (None when not computed).
+    pixel_index: np.ndarray | None = field(default=None, repr=False)
+    seg_labels: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         self.center = _vec(self.center)
