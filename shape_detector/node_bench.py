@@ -1,0 +1,276 @@
+"""Benchmark of the live node: ``detector_node`` in its own process, fed from a bag.
+
+The bag is played (re-stamped to wall-clock time) into a ``detector_node`` subprocess;
+a listener in this process records every ``~/markers`` message. Reported: frames/s of
+marker output, latency from the image stamp (= its publish time) to the markers'
+arrival, p50/p95, and how many frames were dropped because the node was busy.
+
+    python -m shape_detector.node_bench [BAG] [--rate 1] [--loops 3] [--detector MOD:CALLABLE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_BAG = ROOT / "bags" / "sample"
+FASTDDS_PROFILE = Path(__file__).resolve().parent / "config" / "fastdds_shm.xml"
+
+
+def ros_env(domain_id: int | None = None) -> dict[str, str]:
+    """Environment for ROS processes started from here: localhost discovery, shared-memory
+    Fast DDS profile, a domain id (kept if already set)."""
+    env = dict(os.environ)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.setdefault("FASTDDS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILE))
+    if domain_id is not None:
+        env["ROS_DOMAIN_ID"] = str(domain_id)
+    else:
+        env.setdefault("ROS_DOMAIN_ID", str(random.randint(100, 200)))
+    env.setdefault("RCUTILS_LOGGING_BUFFERED_STREAM", "1")
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+def node_command() -> list[str]:
+    """``detector_node`` (console script next to this Python, or on PATH), else
+    ``python -m shape_detector.node``."""
+    for local in (Path(sys.executable).parent / "detector_node",
+                  Path(sys.prefix) / "lib" / "shape_detector" / "detector_node"):
+        if local.exists():
+            return [str(local)]
+    found = shutil.which("detector_node")
+    if found:
+        return [found]
+    return [sys.executable, "-m", "shape_detector.node"]
+
+
+def start_node(
+    remaps: dict[str, str],
+    params: dict[str, Any] | None = None,
+    env: dict[str, str] | None = None,
+    node_name: str | None = None,
+    extra_pythonpath: list[str] | None = None,
+    params_file: str | Path | None = None,
+) -> subprocess.Popen:
+    """Start ``detector_node`` with ``--ros-args`` remaps, a ``--params-file`` and ``-p``
+    parameters (which win over the file); output (stdout + stderr) is piped."""
+    cmd = node_command() + ["--ros-args"]
+    if params_file:
+        cmd += ["--params-file", str(params_file)]
+    if node_name:
+        cmd += ["-r", f"__node:={node_name}"]
+    for a, b in remaps.items():
+        cmd += ["-r", f"{a}:={b}"]
+    for k, v in (params or {}).items():
+        if isinstance(v, bool):
+            v = "true" if v else "false"
+        elif isinstance(v, (list, tuple)):
+            v = "[" + ",".join(str(float(x)) for x in v) + "]"
+        cmd += ["-p", f"{k}:={v}"]
+    env = dict(env or ros_env())
+    paths = [str(ROOT)] + list(extra_pythonpath or [])
+    if env.get("PYTHONPATH"):
+        paths.append(env["PYTHONPATH"])
+    env["PYTHONPATH"] = os.pathsep.join(paths)
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def stop_node(proc: subprocess.Popen, timeout: float = 10.0) -> int:
+    """SIGINT, then SIGKILL after ``timeout``; returns the exit code."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return int(proc.returncode)
+
+
+class OutputCollector:
+    """Reads a process' piped output on a thread; ``text`` is everything so far."""
+
+    def __init__(self, proc: subprocess.Popen, echo: bool = False) -> None:
+        self.lines: list[str] = []
+        self._echo = echo
+        self._t = threading.Thread(target=self._run, args=(proc,), daemon=True)
+        self._t.start()
+
+    def _run(self, proc: subprocess.Popen) -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            self.lines.append(line)
+            if self._echo:
+                sys.stderr.write(line)
+
+    def wait_for(self, needle: str, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if any(needle in ln for ln in self.lines):
+                return True
+            time.sleep(0.05)
+        return False
+
+    @property
+    def text(self) -> str:
+        return "".join(self.lines)
+
+
+class MarkerListener:
+    """Records ``(arrival_ns, stamp_ns, frame_id, n_markers)`` of every MarkerArray on
+    ``topic``; spins its own executor thread."""
+
+    def __init__(self, context: Any, topic: str = "/shape_detector/markers") -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from visualization_msgs.msg import MarkerArray
+
+        self.received: list[tuple[int, int, str, int]] = []
+        self.node = rclpy.create_node(f"marker_listener_{os.getpid()}", context=context)
+        self.node.create_subscription(
+            MarkerArray, topic, self._cb, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        )
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self._t = threading.Thread(target=self._spin, daemon=True)
+        self._t.start()
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin()
+        except Exception:  # noqa: BLE001 - context shut down
+            pass
+
+    def _cb(self, msg: Any) -> None:
+        now = time.time_ns()
+        h = msg.markers[0].header if msg.markers else None
+        stamp = h.stamp.sec * 1_000_000_000 + h.stamp.nanosec if h is not None else -1
+        self.received.append((now, stamp, h.frame_id if h is not None else "", len(msg.markers)))
+
+    def wait_quiet(self, expected: int, timeout: float, quiet: float = 1.5) -> None:
+        """Until ``expected`` arrived, or nothing new for ``quiet`` s, or ``timeout``."""
+        deadline = time.monotonic() + timeout
+        last_n, last_change = len(self.received), time.monotonic()
+        while time.monotonic() < deadline and len(self.received) < expected:
+            time.sleep(0.05)
+            if len(self.received) != last_n:
+                last_n, last_change = len(self.received), time.monotonic()
+            elif time.monotonic() - last_change > quiet:
+                break
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+
+
+def bench_node(
+    bag: str | Path | None = None,
+    weights: str | None = None,
+    *,
+    rate: float = 1.0,
+    loops: int = 1,
+    detector_factory: str | None = None,
+    extra_pythonpath: list[str] | None = None,
+    ready_timeout: float = 120.0,
+    echo: bool = False,
+    print_result: bool = True,
+) -> dict[str, Any]:
+    """Run ``detector_node`` on ``bag`` (default: the sample bag) played ``loops`` times at
+    ``rate``; returns and prints frames/s and stamp->markers latency p50/p95 (ms)."""
+    import rclpy
+
+    from .bag_io import open_bag, select_topics
+    from .replay import play_bag
+
+    bag = Path(bag) if bag else DEFAULT_BAG
+    with open_bag(bag) as src:
+        sel = select_topics(src)
+    remaps = {"image": sel.image, "depth": sel.depth, "camera_info": sel.camera_info}
+    params: dict[str, Any] = {"stats_period": 5.0}
+    if weights:
+        params["weights"] = str(weights)
+    if detector_factory:
+        params["detector_factory"] = detector_factory
+    env = ros_env()
+    os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID", "FASTDDS_DEFAULT_PROFILES_FILE")})
+    proc = start_node(remaps, params, env=env, extra_pythonpath=extra_pythonpath)
+    out = OutputCollector(proc, echo=echo)
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    listener = MarkerListener(ctx)
+    result: dict[str, Any] = {"bag": str(bag), "rate": rate, "loops": loops}
+    try:
+        if not out.wait_for("ready:", ready_timeout):
+            raise RuntimeError(f"detector_node did not become ready in {ready_timeout} s:\n{out.text[-3000:]}")
+        sent = 0
+        t0 = time.perf_counter()
+        for k in range(max(1, loops)):
+            s = play_bag(bag, rate, restamp=True, context=ctx, wait_subscribers=30.0 if k == 0 else 0.0,
+                         node_name=f"bench_player_{os.getpid()}_{k}", log=lambda *_: None)
+            sent += s.per_topic.get(sel.image, 0)
+        listener.wait_quiet(sent, timeout=60.0)
+        wall = time.perf_counter() - t0
+        rec = list(listener.received)
+        arrivals = np.array([r[0] for r in rec], dtype=np.float64)
+        lat = np.array([(r[0] - r[1]) / 1e6 for r in rec if r[1] > 0])
+        fps = (len(rec) - 1) / ((arrivals[-1] - arrivals[0]) / 1e9) if len(rec) > 1 else 0.0
+        result.update(
+            frames_sent=sent,
+            frames_received=len(rec),
+            frames_dropped=sent - len(rec),
+            fps=float(fps),
+            input_fps=float(sent / wall) if wall > 0 else 0.0,
+            latency_p50_ms=float(np.percentile(lat, 50)) if lat.size else float("nan"),
+            latency_p95_ms=float(np.percentile(lat, 95)) if lat.size else float("nan"),
+            latency_max_ms=float(lat.max()) if lat.size else float("nan"),
+        )
+    finally:
+        listener.close()
+        rclpy.try_shutdown(context=ctx)
+        rc = stop_node(proc)
+        result["node_exit_code"] = rc
+    if print_result:
+        print(
+            f"node: {result['frames_received']}/{result['frames_sent']} frames, {result['fps']:.2f} frames/s "
+            f"(input {result['input_fps']:.2f}/s, rate {rate}), latency stamp->markers p50 "
+            f"{result['latency_p50_ms']:.1f} ms, p95 {result['latency_p95_ms']:.1f} ms, "
+            f"dropped {result['frames_dropped']}",
+            flush=True,
+        )
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m shape_detector.node_bench", description=__doc__.split("\n\n")[0])
+    p.add_argument("bag", nargs="?", default=None)
+    p.add_argument("--weights")
+    p.add_argument("--rate", type=float, default=1.0)
+    p.add_argument("--loops", type=int, default=1)
+    p.add_argument("--detector", help="detector factory MODULE:CALLABLE")
+    p.add_argument("--echo", action="store_true", help="show the node's log")
+    p.add_argument("--json", action="store_true")
+    a = p.parse_args(argv)
+    res = bench_node(a.bag, a.weights, rate=a.rate, loops=a.loops, detector_factory=a.detector, echo=a.echo,
+                     print_result=not a.json)
+    if a.json:
+        print(json.dumps(res, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,231 @@
+"""detector_node in this process, spun by an executor thread: topics, stamps, never falling
+behind, parameters (dynamic ones, validation), up from a fixed vector or an IMU."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+
+from msg_conversion import K_to_camera_info, depth_to_image, make_header, numpy_to_image, rclpy_types  # noqa: E402
+from shape_detector.node import DetectorNode  # noqa: E402
+from shape_detector.types import Object3D  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+WEIGHTS = ROOT / "shape_detector" / "weights" / "default.pt"
+K = np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]])
+MS = 1_000_000
+
+
+class FakeDetector:
+    def __init__(self, delay: float = 0.0, **kwargs):
+        self.delay = delay
+        self.calls = []
+        self.score_threshold = 0.3
+        self.max_objects = 20
+
+    def detect(self, rgb, depth, K, boxes2d=None, up=None):
+        self.calls.append({"shape": rgb.shape, "up": up, "t": time.monotonic()})
+        if self.delay:
+            time.sleep(self.delay)
+        z = float(np.nanmedian(depth))
+        return [Object3D("table", 0.7, [0.1, 0.2, z], [1.0, 0.6, 0.7], np.eye(3))]
+
+
+def make_detector():
+    if WEIGHTS.exists():
+        from shape_detector.detector import ShapeDetector
+
+        return ShapeDetector()
+    return FakeDetector()
+
+
+class Harness:
+    """A DetectorNode + a test node (publishers, markers subscriber) on one executor thread."""
+
+    def __init__(self, ctx, name: str, detector, params=None, imu=False):
+        self.types = rclpy_types()
+        overrides = [Parameter(k, value=v) for k, v in (params or {}).items()]
+        self.node = DetectorNode(name, context=ctx, detector=detector, parameter_overrides=overrides,
+                                 cli_args=["--ros-args", "-r", f"image:=/{name}/in/image", "-r",
+                                           f"depth:=/{name}/in/depth", "-r", f"camera_info:=/{name}/in/info",
+                                           "-r", f"imu:=/{name}/in/imu"])
+        self.test = rclpy.create_node(f"{name}_tester", context=ctx)
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        T = self.types
+        self.pub_img = self.test.create_publisher(T.Image, f"/{name}/in/image", qos)
+        self.pub_depth = self.test.create_publisher(T.Image, f"/{name}/in/depth", qos)
+        self.pub_info = self.test.create_publisher(T.CameraInfo, f"/{name}/in/info", qos)
+        if imu:
+            from sensor_msgs.msg import Imu
+
+            self.pub_imu = self.test.create_publisher(Imu, f"/{name}/in/imu", qos)
+        self.markers = []
+        self.test.create_subscription(T.MarkerArray, f"/{name}/markers", self.markers.append, qos)
+        self.executor = SingleThreadedExecutor(context=ctx)
+        self.executor.add_node(self.node)
+        self.executor.add_node(self.test)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            if (self.pub_img.get_subscription_count() and self.pub_depth.get_subscription_count()
+                    and self.pub_info.get_subscription_count() and self.node.markers_pub.get_subscription_count()):
+                break
+            time.sleep(0.05)
+        time.sleep(0.2)
+
+    def frame(self, stamp_ns: int, w=320, h=240, frame_id="cam_optical", depth_offset_ns=2 * MS, info=True):
+        T = self.types
+        rgb = np.full((h, w, 3), 100, np.uint8)
+        depth = np.full((h, w), 2.5)
+        if info:
+            self.pub_info.publish(K_to_camera_info(K, w, h, T, stamp_ns, frame_id))
+        self.pub_img.publish(numpy_to_image(rgb, "rgb8", T, stamp_ns, frame_id))
+        self.pub_depth.publish(depth_to_image(depth, T, "16UC1", stamp_ns + depth_offset_ns, frame_id))
+
+    def wait_markers(self, n: int, timeout: float = 20.0) -> list:
+        deadline = time.monotonic() + timeout
+        while len(self.markers) < n and time.monotonic() < deadline:
+            time.sleep(0.02)
+        return self.markers
+
+    def close(self):
+        self.executor.shutdown(timeout_sec=2.0)
+        self.thread.join(timeout=5)
+        self.node.destroy_node()
+        self.test.destroy_node()
+
+
+@pytest.fixture
+def harness(ros_context, request):
+    made = []
+
+    def make(name, detector=None, **kw):
+        h = Harness(ros_context, name, detector if detector is not None else make_detector(), **kw)
+        made.append(h)
+        return h
+
+    yield make
+    for h in made:
+        h.close()
+
+
+def stamp_of(ma) -> int:
+    s = ma.markers[0].header.stamp
+    return s.sec * 10**9 + s.nanosec
+
+
+def test_one_marker_array_per_frame_with_stamp_and_frame(harness):
+    h = harness("sd_basic")
+    stamps = []
+    for k in range(6):
+        stamps.append(time.time_ns())
+        h.frame(stamps[-1])
+        assert len(h.wait_markers(k + 1)) == k + 1  # lockstep: nothing is dropped
+    assert [stamp_of(m) for m in h.markers] == stamps
+    assert all(m.markers[0].header.frame_id == "cam_optical" for m in h.markers)
+    assert all(m.markers[0].action == 3 for m in h.markers)  # DELETEALL first
+    stats = h.node.get_stats()
+    assert stats["synced"] == 6 and stats["processed"] == 6 and stats["published"] == 6 and stats["dropped"] == 0
+    assert stats["latency_p50_ms"] > 0
+    if isinstance(h.node.detector, FakeDetector):
+        assert all(len(m.markers) == 4 for m in h.markers)
+        assert h.markers[0].markers[3].text.startswith("table")
+    assert h.node.resolve_topic_name("~/markers") == "/sd_basic/markers"
+
+
+def test_never_falls_behind(harness):
+    det = FakeDetector(delay=0.25)
+    h = harness("sd_busy", det, params={"qos_depth": 20})
+    t0 = time.time_ns()
+    stamps = [t0 + k * 20 * MS for k in range(12)]
+    for s in stamps:
+        h.frame(s)
+        time.sleep(0.02)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        st = h.node.get_stats()
+        if st.get("synced", 0) == 12 and st.get("processed", 0) + st["dropped"] == 12:
+            break
+        time.sleep(0.05)
+    st = h.node.get_stats()
+    assert st["synced"] == 12
+    assert st["dropped"] >= 5, st
+    assert st["processed"] + st["dropped"] == 12
+    h.wait_markers(st["processed"])
+    assert stamp_of(h.markers[-1]) == stamps[-1]  # the newest set is never the one dropped
+    got = [stamp_of(m) for m in h.markers]
+    assert got == sorted(got)
+
+
+def test_parameters_dynamic_and_validated(harness):
+    det = FakeDetector()
+    h = harness("sd_params", det, params={"up_source": "fixed", "up": [0, 0, 2]})  # integers are fine too
+    n = h.node
+    # descriptions and read-only flags are declared
+    desc = n.describe_parameters(["score_threshold", "qos"])
+    assert desc[0].description and not desc[0].read_only and desc[1].read_only
+    res = n.set_parameters([Parameter("score_threshold", value=0.55), Parameter("max_objects", value=3)])
+    assert all(r.successful for r in res) and det.score_threshold == 0.55 and det.max_objects == 3
+    res = n.set_parameters([Parameter("sync_slop", value=0.001), Parameter("sync_queue_size", value=4)])
+    assert all(r.successful for r in res) and n.sync.slop_ns == MS and n.sync.queue_size == 4
+    assert not n.set_parameters([Parameter("up_source", value="gyro")])[0].successful
+    assert not n.set_parameters([Parameter("up", value=[0.0, 0.0, 0.0])])[0].successful
+    assert not n.set_parameters([Parameter("imu_to_camera", value=[0.0, 0.0, 0.0, 0.0])])[0].successful
+    assert not n.set_parameters([Parameter("qos", value="reliable")])[0].successful  # read-only
+    assert not n.set_parameters([Parameter("score_threshold", value=2.0)])[0].successful  # out of range
+    # the 1 ms slop still pairs depth 0.5 ms late; the fixed up vector reaches the detector
+    h.frame(time.time_ns(), depth_offset_ns=MS // 2)
+    h.wait_markers(1)
+    np.testing.assert_allclose(det.calls[-1]["up"], [0, 0, 1])
+    # depth 3 ms late is now outside the slop: no set
+    h.frame(time.time_ns(), depth_offset_ns=3 * MS)
+    time.sleep(0.5)
+    assert len(h.markers) == 1
+
+
+def test_up_from_imu(harness):
+    det = FakeDetector()
+    # IMU z axis = camera -y (up), i.e. +90 deg about x
+    q = [float(np.sin(np.pi / 4)), 0.0, 0.0, float(np.cos(np.pi / 4))]
+    h = harness("sd_imu", det, params={"up_source": "imu", "imu_to_camera": q, "imu_time_constant": 0.05}, imu=True)
+    from sensor_msgs.msg import Imu
+
+    deadline = time.monotonic() + 5
+    while not h.pub_imu.get_subscription_count() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    t = time.time_ns()
+    for k in range(30):
+        m = Imu()
+        m.header = make_header(h.types, t + k * 5 * MS, "imu")
+        m.linear_acceleration.z = 9.81
+        h.pub_imu.publish(m)
+    deadline = time.monotonic() + 5
+    while h.node.imu_filter.samples < 30 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    h.frame(t + 200 * MS)
+    h.wait_markers(1)
+    np.testing.assert_allclose(det.calls[-1]["up"], [0, -1, 0], atol=1e-6)
+
+
+def test_external_proposals_fall_back_without_vision_msgs(harness):
+    try:
+        import vision_msgs.msg  # noqa: F401
+
+        pytest.skip("vision_msgs installed: external proposals are really used")
+    except ImportError:
+        pass
+    h = harness("sd_ext", FakeDetector(), params={"proposal_source": "external"})
+    assert not h.node.external and h.node.sync.num_inputs == 2
+    h.frame(time.time_ns())
+    assert len(h.wait_markers(1)) == 1
