@@ -69,9 +69,10 @@ def noise_texture(kind: str = "fractal") -> np.ndarray:
 def sample_noise(img: np.ndarray, s: np.ndarray, t: np.ndarray, scale: float | np.ndarray) -> np.ndarray:
     """Nearest lookup of a tileable noise image at metres ``(s, t)`` * ``scale`` texels/m."""
     n = img.shape[0]
-    iu = (np.floor(s * scale).astype(np.int64)) & (n - 1)
-    iv = (np.floor(t * scale).astype(np.int64)) & (n - 1)
-    return img[iv, iu]
+    sc = np.float32(scale) if np.ndim(scale) == 0 else scale
+    iu = (s * sc + np.float32(4096.0)).astype(np.int32) & (n - 1)
+    iv = (t * sc + np.float32(4096.0)).astype(np.int32) & (n - 1)
+    return img.ravel()[(iv << int(np.log2(n))) | iu]
 
 
 def _hash01(a: np.ndarray, b: np.ndarray | int = 0) -> np.ndarray:
@@ -91,14 +92,15 @@ def albedo(kind: int, rows: np.ndarray, s: np.ndarray, t: np.ndarray) -> np.ndar
     c2 = rows[:, 4:7]
     sc = np.maximum(rows[:, 7], 1e-3)
     off = rows[:, 10]
-    s = s + off * 7.31
-    t = t + off * 3.17
+    s = s + off * np.float32(7.31)
+    t = t + off * np.float32(3.17)
     fr = noise_texture("fractal")
     fine = noise_texture("fine")
     sm = noise_texture("smooth")
     if kind == PLAIN or kind == GLASS or kind == EMISSIVE:
-        n = sample_noise(sm, s, t, 40.0) * 0.035 + sample_noise(fr, s, t, 300.0) * 0.012
-        return c1 * (1.0 + n)[:, None]
+        n = sample_noise(sm, s, t, 40.0) * np.float32(0.04)
+        n += 1.0
+        return c1 * n[:, None]
     if kind == WOOD:
         warp = sample_noise(fr, s, t * 0.15, 60.0) * 0.8
         g = 0.5 + 0.5 * np.sin((t / (sc * 0.05) + warp) * 2 * np.pi)
@@ -174,22 +176,26 @@ def wood(rng: np.random.Generator, dark: bool | None = None) -> Material:
     c1 = _jitter(rng, c)
     c2 = tuple(float(v) for v in np.clip(np.array(c1) * rng.uniform(0.55, 0.8), 0, 1))
     return Material(WOOD, c1, c2, float(rng.uniform(0.6, 1.6)), float(rng.uniform(0.0, 0.25)),
-                    float(np.clip(np.mean(c1) * 2.2, 0.25, 1.0)), float(rng.uniform(0, 100)))
+                    float(rng.uniform(0.7, 1.0)), float(rng.uniform(0, 100)))
 
 
 def paint(rng: np.random.Generator, bright: bool = True) -> Material:
     if bright or rng.random() < 0.7:
         c = _PAINTS[rng.integers(len(_PAINTS))]
     else:
-        c = rng.uniform(0.1, 0.9, 3)
+        c = _desaturate(rng, rng.uniform(0.1, 0.9, 3))
     c1 = _jitter(rng, c, 0.04)
     return Material(PLAIN, c1, c1, 0.1, float(rng.uniform(0, 0.1)), 1.0, float(rng.uniform(0, 100)))
 
 
+def _desaturate(rng: np.random.Generator, c: np.ndarray) -> np.ndarray:
+    """Real interiors are mostly muted: keep a random, usually small, share of the saturation."""
+    m = c.mean()
+    return np.clip(m + (c - m) * rng.beta(1.3, 2.6) * 1.3, 0.0, 1.0)
+
+
 def colored(rng: np.random.Generator, lo: float = 0.05, hi: float = 0.95, spec: float = 0.1) -> Material:
-    c = rng.uniform(lo, hi, 3)
-    if rng.random() < 0.5:  # desaturate
-        c = 0.5 * c + 0.5 * c.mean()
+    c = _desaturate(rng, rng.uniform(lo, hi, 3))
     c1 = tuple(float(v) for v in c)
     return Material(PLAIN, c1, c1, 0.1, float(rng.uniform(0, spec)), float(np.clip(c.mean() * 2.5, 0.15, 1)),
                     float(rng.uniform(0, 100)))
@@ -261,6 +267,7 @@ def emissive(rng: np.random.Generator, bright: float = 1.0) -> Material:
 
 def book(rng: np.random.Generator) -> Material:
     c = rng.uniform(0.05, 0.9, 3)
+    c = 0.45 * c + 0.55 * c.mean() * rng.uniform(0.6, 1.1)
     if rng.random() < 0.3:
         c = np.full(3, rng.uniform(0.1, 0.95))
     c1 = tuple(float(v) for v in c)
