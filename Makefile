@@ -14,7 +14,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_DOMAIN_ID ?= 77
 export FASTDDS_DEFAULT_PROFILES_FILE ?= $(CURDIR)/shape_detector/config/fastdds_shm.xml
 
-.PHONY: demo test install bench sample-bag figures weights evaluate clean
+.PHONY: demo test install bench sample-bag figures weights evaluate ablation clean
 
 install: $(STAMP)
 
@@ -41,6 +41,28 @@ sample-bag: $(STAMP)
 
 figures: $(STAMP)
 	$(VENV)/bin/shape-detector synth figure --out docs/synth_grid.png --seed 3
+
+# Training data (generated, never committed), the shipped weights, evaluation, comparison.
+DATA ?= data
+SD   := $(VENV)/bin/shape-detector
+
+$(DATA)/train/index.json: | $(STAMP)
+	$(SD) synth dataset --out $(DATA)/train --frames 3000 --seed 1 --workers 2 --rgb-format jpg --frames-per-shard 150
+$(DATA)/val/index.json: | $(STAMP)
+	$(SD) synth dataset --out $(DATA)/val --frames 200 --seed 2 --workers 2 --rgb-format jpg --frames-per-shard 100
+$(DATA)/test/index.json: | $(STAMP)
+	$(SD) synth dataset --out $(DATA)/test --frames 250 --seed 3 --workers 2 --rgb-format jpg --frames-per-shard 125
+
+weights: $(DATA)/train/index.json $(DATA)/val/index.json
+	$(SD) train --data $(DATA)/train --val-data $(DATA)/val --out runs/main --seed 0 --epochs 7 --device cpu --threads 1
+	cp runs/main/weights.pt shape_detector/weights/default.pt
+
+evaluate: $(DATA)/test/index.json
+	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --out docs/eval/gt_boxes
+	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --out docs/eval/builtin --no-gt-boxes --estimate-up
+
+ablation: $(DATA)/train/index.json $(DATA)/val/index.json
+	bash scripts/ablation.sh
 
 clean:
 	rm -rf $(OUT) build *.egg-info .pytest_cache

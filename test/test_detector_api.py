@@ -1,0 +1,95 @@
+"""The public ShapeDetector contract: frames, shapes, units, and a hand-placed box recovered."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from shape_detector import ShapeDetector
+from shape_detector.geometry import rot_z, rotation_to_heading, upright_rotation
+from shape_detector.proposals.evaluate import box_part, toy_scene, up_from_pitch_roll
+
+CAM_HEIGHT = 1.3
+
+
+@pytest.fixture(scope="module")
+def detector() -> ShapeDetector:
+    return ShapeDetector(score_threshold=0.0)  # packaged default weights, CPU
+
+
+def _dresser_scene(yaw: float = 0.35, pitch_deg: float = 12.0):
+    """A 0.53 x 1.00 x 1.17 m box standing on the floor 2.6 m ahead, seen by a pitched camera."""
+    up = up_from_pitch_roll(pitch_deg)  # camera pitched down
+    size = np.array([0.53, 1.00, 1.17])
+    centre_w = np.array([0.25, 2.6, size[2] / 2])
+    frame = toy_scene(
+        [("dresser", [box_part(centre_w[0], centre_w[1], *size, yaw=yaw)])], up=up, cam_height=CAM_HEIGHT, seed=3
+    )
+    R_cu = upright_rotation(frame.up)
+    centre_cam = R_cu @ (centre_w - np.array([0.0, 0.0, CAM_HEIGHT]))
+    return frame, centre_cam, size, R_cu @ rot_z(yaw)
+
+
+def _check_object_contract(obj, up: np.ndarray) -> None:
+    assert isinstance(obj.class_name, str) and 0.0 <= obj.score <= 1.0
+    assert obj.center.shape == (3,) and obj.size.shape == (3,) and obj.rotation.shape == (3, 3)
+    np.testing.assert_allclose(obj.rotation.T @ obj.rotation, np.eye(3), atol=1e-6)
+    assert np.linalg.det(obj.rotation) == pytest.approx(1.0, abs=1e-6)
+    np.testing.assert_allclose(obj.rotation[:, 2], up, atol=1e-6)  # yaw about gravity only
+    assert np.all(obj.size > 0)
+    assert 1 <= len(obj.primitives) <= 6
+    for prim in obj.primitives:
+        assert prim.center.shape == (3,) and np.all(prim.size > 0)
+        np.testing.assert_allclose(prim.rotation.T @ prim.rotation, np.eye(3), atol=1e-5)
+
+
+def test_hand_placed_box_is_recovered_within_5cm(detector):
+    frame, centre, size, rotation = _dresser_scene()
+    gt = frame.objects[0]
+    objects = detector.detect(frame.rgb, frame.depth, frame.K, boxes2d=[(*gt.box2d, "dresser")], up=frame.up)
+    assert len(objects) == 1
+    obj = objects[0]
+    _check_object_contract(obj, frame.up)
+    assert obj.class_name == "dresser"
+    assert np.linalg.norm(obj.center - centre) < 0.05, (obj.center, centre)
+    np.testing.assert_allclose(obj.size, size, rtol=0.2)
+    # a plain box is symmetric under a half turn: compare headings modulo pi
+    d = rotation_to_heading(obj.rotation, frame.up) - rotation_to_heading(rotation, frame.up)
+    assert abs((d + np.pi / 2) % np.pi - np.pi / 2) < np.radians(15)
+    # primitives live where the object is: their centres inside the (slightly grown) GT box
+    local = (np.stack([p.center for p in obj.primitives]) - centre) @ rotation
+    assert np.all(np.abs(local) <= size / 2 + 0.1)
+
+
+def test_uint16_millimetres_and_float_metres_give_the_same_result(detector):
+    frame, *_ = _dresser_scene()
+    box = [(*frame.objects[0].box2d, "dresser")]
+    depth_mm = np.nan_to_num(frame.depth * 1000.0, nan=0.0).round().astype(np.uint16)
+    a = detector.detect(frame.rgb, depth_mm, frame.K, boxes2d=box, up=frame.up)
+    b = detector.detect(frame.rgb, depth_mm.astype(np.float32) / 1000.0, frame.K, boxes2d=box, up=frame.up)
+    np.testing.assert_allclose(a[0].center, b[0].center, atol=1e-4)
+
+
+def test_without_boxes_or_up_uses_builtin_proposals_and_gravity(detector):
+    frame, centre, *_ = _dresser_scene()
+    objects = detector.detect(frame.rgb, frame.depth, frame.K)
+    assert detector.last_up is not None
+    up_err = np.degrees(np.arccos(np.clip(detector.last_up @ frame.up, -1, 1)))
+    assert up_err < 2.0
+    for obj in objects:
+        _check_object_contract(obj, detector.last_up)
+    assert any(np.linalg.norm(o.center - centre) < 0.15 for o in objects)
+    assert set(detector.last_timing) >= {"proposals_ms", "network_ms", "total_ms"}
+
+
+def test_empty_depth_and_bad_inputs(detector):
+    frame, *_ = _dresser_scene()
+    empty = np.full_like(frame.depth, np.nan)
+    assert detector.detect(frame.rgb, empty, frame.K) == []
+    assert detector.detect(frame.rgb, empty, frame.K, boxes2d=[(10, 10, 100, 100, "chair")]) == []
+    with pytest.raises(ValueError, match="differs"):
+        detector.detect(frame.rgb[:100], frame.depth, frame.K)
+    with pytest.raises(ValueError, match="focal"):
+        detector.detect(frame.rgb, frame.depth, np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="up"):
+        detector.detect(frame.rgb, frame.depth, frame.K, up=np.zeros(3))
