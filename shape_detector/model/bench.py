@@ -1,0 +1,91 @@
+"""Network benchmark: ms per frame for a batched forward of 1, 5, 10 frustums.
+
+``bench_network`` times :meth:`FrustumPredictor.predict` (one batched forward + decoding
++ primitive pruning) on synthetic frustums; the network's cost does not depend on the
+point values, so random points are fine. ``shape-detector bench network`` (the bench
+module) calls it.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..frustum import Frustum
+from ..geometry import upright_rotation
+
+
+def _fake_frustums(n: int, num_points: int, rng: np.random.Generator) -> list[Frustum]:
+    out = []
+    for _ in range(n):
+        pts = np.zeros((num_points, 6), np.float32)
+        pts[:, 0] = rng.normal(0, 0.4, num_points)
+        pts[:, 1] = rng.uniform(1.5, 4.0, num_points)
+        pts[:, 2] = rng.normal(-0.5, 0.4, num_points)
+        pts[:, 3:] = rng.random((num_points, 3))
+        out.append(Frustum(pts, np.arange(num_points), num_points, 0.1, upright_rotation(None)))
+    return out
+
+
+def bench_network(
+    counts: Sequence[int] = (1, 5, 10),
+    weights: str | Path | None = None,
+    device: str = "cpu",
+    num_threads: int | None = 2,
+    repeats: int = 20,
+    warmup: int = 3,
+    num_points: int | None = None,
+    verbose: bool = True,
+) -> dict:
+    """Median / mean ms per frame (one batched ``predict`` of ``count`` frustums).
+
+    Returns ``{"device", "num_threads", "num_points", "results": {count: {"median_ms",
+    "mean_ms", "fps"}}}`` and prints one line per count.
+    """
+    import warnings
+
+    from .predictor import FrustumPredictor
+
+    if num_threads is not None:
+        torch.set_num_threads(int(num_threads))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        pred = FrustumPredictor(weights, device=device, num_threads=num_threads)
+    n_pts = int(num_points or pred.num_points)
+    rng = np.random.default_rng(0)
+    results = {}
+    for c in counts:
+        fr = _fake_frustums(int(c), n_pts, rng)
+        cls = [i % pred.config.num_classes for i in range(int(c))]
+        for _ in range(warmup):
+            pred.predict(fr, cls)
+        times = []
+        for _ in range(repeats):
+            if pred.device.type == "cuda":
+                torch.cuda.synchronize()
+            t0 = time.perf_counter()
+            pred.predict(fr, cls)
+            if pred.device.type == "cuda":
+                torch.cuda.synchronize()
+            times.append((time.perf_counter() - t0) * 1000.0)
+        med = float(np.median(times))
+        results[int(c)] = {"median_ms": med, "mean_ms": float(np.mean(times)), "fps": 1000.0 / med}
+        if verbose:
+            print(
+                f"network: {c:3d} objects/frame  {med:7.2f} ms/frame (median of {repeats})  "
+                f"{1000.0 / med:6.1f} frames/s  [{pred.device}, {torch.get_num_threads()} threads, {n_pts} pts]"
+            )
+    return {
+        "device": str(pred.device),
+        "num_threads": torch.get_num_threads(),
+        "num_points": n_pts,
+        "results": results,
+    }
+
+
+if __name__ == "__main__":  # pragma: no cover
+    bench_network()

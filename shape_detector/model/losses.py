@@ -1,0 +1,190 @@
+"""Multi-task losses of FrustumShapeNet (Frustum PointNets v1 + Tulsiani primitives + class).
+
+All losses are computed in the frustum frame ``F`` (shape losses in the GT box's canonical
+frame, primitives composed with the **GT** box size so shape learning is decoupled from
+box errors). Task flags select the groups:
+
+* always: instance segmentation cross-entropy (all frustums, negatives all background);
+* ``box``: Huber on the stage-1 (T-Net) and final centre, heading-bin and size-cluster
+  cross-entropy, Huber on the normalised residuals, corner loss (min over the GT box and
+  its heading-flipped twin) -- positives only;
+* ``shape``: coverage (sum of the ``l`` smallest squared distances of GT surface samples to
+  the primitives) and consistency (area-weighted squared distance of reparametrised
+  primitive-surface samples to the union of GT parts) -- positives with shape GT only;
+  plus the auxiliary supervised matched-part loss (weight ``part``, 0 = thesis-only
+  losses, see :func:`shape_detector.model.primitives.matched_part_loss`);
+* ``cls``: cross-entropy of the classification head (classes + background), all frustums.
+
+``batch`` keys (torch tensors, B = batch): ``seg`` (B,N) long, ``cls_label`` (B,) long
+(``num_classes`` = background), ``is_negative`` (B,) bool, ``size_cluster`` (B,) long,
+``center`` (B,3), ``size`` (B,3), ``heading`` (B,), ``has_shape`` (B,) bool,
+``parts_center`` (B,P,3), ``parts_size`` (B,P,3), ``parts_rotation`` (B,P,3,3),
+``parts_mask`` (B,P) bool, ``surface`` (B,S,3).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+
+from .box_coder import box_corners_torch, decode_heading, decode_size, encode_heading, encode_size, gather_bin
+from .primitives import consistency_loss, coverage_loss, matched_part_loss, primitive_params
+
+
+@dataclass
+class LossWeights:
+    seg: float = 1.0
+    center: float = 1.0
+    stage1_center: float = 1.0
+    heading_cls: float = 1.0
+    heading_res: float = 20.0
+    size_cls: float = 1.0
+    size_res: float = 20.0
+    corner: float = 10.0
+    coverage: float = 10.0
+    consistency: float = 30.0
+    part: float = 10.0
+    cls: float = 1.0
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any] | None) -> "LossWeights":
+        names = {f.name for f in fields(cls)}
+        d = dict(d or {})
+        bad = set(d) - names
+        if bad:
+            raise ValueError(f"unknown loss weights {sorted(bad)}")
+        return cls(**{k: float(v) for k, v in d.items()})
+
+    def to_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+ALL_TASKS = ("box", "shape", "cls")
+
+
+def parse_tasks(tasks) -> frozenset[str]:
+    """``"box,shape,cls"`` / iterable -> frozenset, validated."""
+    if isinstance(tasks, str):
+        tasks = [t.strip() for t in tasks.split(",") if t.strip()]
+    out = frozenset(tasks)
+    bad = out - set(ALL_TASKS)
+    if bad:
+        raise ValueError(f"unknown tasks {sorted(bad)}; choose from {ALL_TASKS}")
+    return out
+
+
+def huber(x: torch.Tensor, delta: float) -> torch.Tensor:
+    """Elementwise Huber of ``x`` (a residual or a norm), as in Frustum PointNets."""
+    a = x.abs()
+    q = torch.clamp(a, max=delta)
+    return 0.5 * q * q + delta * (a - q)
+
+
+def _masked_mean(v: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
+    mf = m.to(v.dtype)
+    return (v * mf).sum() / mf.sum().clamp_min(1.0)
+
+
+def compute_losses(
+    out: dict[str, torch.Tensor],
+    batch: dict[str, torch.Tensor],
+    mean_sizes: torch.Tensor,
+    tasks=ALL_TASKS,
+    weights: LossWeights | None = None,
+    l_nearest: int = 1,
+    consistency_per_face: int = 25,
+    min_size_frac: float = 0.01,
+) -> dict[str, torch.Tensor]:
+    """Weighted loss terms, their sum under ``"total"``, and a few detached accuracies."""
+    tasks = parse_tasks(tasks)
+    w = weights or LossWeights()
+    losses: dict[str, torch.Tensor] = {}
+    stats: dict[str, torch.Tensor] = {}
+    seg_logits = out["seg_logits"]
+    seg = batch["seg"].long()
+    losses["seg"] = w.seg * F.cross_entropy(seg_logits.reshape(-1, 2), seg.reshape(-1))
+    with torch.no_grad():
+        stats["seg_acc"] = (seg_logits.argmax(-1) == seg).float().mean()
+
+    pos = ~batch["is_negative"].bool()
+    any_pos = bool(pos.any())
+    if "box" in tasks and any_pos:
+        nh = out["heading_scores"].shape[1]
+        gt_c, gt_s, gt_h = batch["center"], batch["size"], batch["heading"]
+        scl = batch["size_cluster"].long().clamp_min(0)
+        d1 = (out["stage1_center"] - gt_c).norm(dim=1)
+        d2 = (out["center"] - gt_c).norm(dim=1)
+        losses["stage1_center"] = w.stage1_center * _masked_mean(huber(d1, 1.0), pos)
+        losses["center"] = w.center * _masked_mean(huber(d2, 2.0), pos)
+        hcls, hres = encode_heading(gt_h, nh)
+        losses["heading_cls"] = w.heading_cls * _masked_mean(
+            F.cross_entropy(out["heading_scores"], hcls, reduction="none"), pos
+        )
+        pred_hres = gather_bin(out["heading_res_norm"], hcls)
+        losses["heading_res"] = w.heading_res * _masked_mean(huber(pred_hres - hres, 1.0), pos)
+        losses["size_cls"] = w.size_cls * _masked_mean(
+            F.cross_entropy(out["size_scores"], scl, reduction="none"), pos
+        )
+        sres = encode_size(gt_s, scl, mean_sizes)
+        pred_sres = gather_bin(out["size_res_norm"], scl)
+        losses["size_res"] = w.size_res * _masked_mean(huber((pred_sres - sres).norm(dim=1), 1.0), pos)
+        # corner loss: predicted centre, heading from the GT bin + predicted residual, size
+        # from the GT cluster + predicted residual; min over the GT box and its flip.
+        ph = decode_heading(hcls, pred_hres, nh)
+        ps = decode_size(scl, pred_sres, mean_sizes)
+        pc = box_corners_torch(out["center"], ps, ph)
+        gc = box_corners_torch(gt_c, gt_s, gt_h)
+        gcf = box_corners_torch(gt_c, gt_s, gt_h + math.pi)
+        dc = torch.minimum((pc - gc).norm(dim=2).mean(1), (pc - gcf).norm(dim=2).mean(1))
+        # Frustum PointNets: huber of each corner distance; mean over corners
+        dcc = torch.minimum(
+            huber((pc - gc).norm(dim=2), 1.0).mean(1), huber((pc - gcf).norm(dim=2), 1.0).mean(1)
+        )
+        losses["corner"] = w.corner * _masked_mean(dcc, pos)
+        with torch.no_grad():
+            stats["center_err"] = _masked_mean(d2, pos)
+            stats["corner_dist"] = _masked_mean(dc, pos)
+
+    if "shape" in tasks:
+        sh = pos & batch["has_shape"].bool()
+        if bool(sh.any()):
+            idx = sh.nonzero().squeeze(1)
+            raw = out["shape_raw"][idx]
+            gsize = batch["size"][idx]
+            prims = primitive_params(raw, gsize, min_size_frac)
+            scale = gsize.norm(dim=1)
+            cov = coverage_loss(batch["surface"][idx], prims, l_nearest, scale)
+            con = consistency_loss(
+                prims,
+                batch["parts_center"][idx],
+                batch["parts_size"][idx],
+                batch["parts_rotation"][idx],
+                batch["parts_mask"][idx].bool(),
+                per_face=consistency_per_face,
+                scale=scale,
+            )
+            losses["coverage"] = w.coverage * cov.mean()
+            losses["consistency"] = w.consistency * con.mean()
+            if w.part > 0:
+                part = matched_part_loss(
+                    prims, batch["parts_center"][idx], batch["parts_size"][idx], batch["parts_rotation"][idx],
+                    batch["parts_mask"][idx].bool(), scale=scale,
+                )
+                losses["part"] = w.part * part.mean()
+
+    if "cls" in tasks:
+        cl = batch["cls_label"].long()
+        losses["cls"] = w.cls * F.cross_entropy(out["cls_logits"], cl)
+        with torch.no_grad():
+            stats["cls_acc"] = (out["cls_logits"].argmax(1) == cl).float().mean()
+
+    total = sum(losses.values())
+    result = dict(losses)
+    result["total"] = total  # type: ignore[assignment]
+    for k, v in stats.items():
+        result["stat_" + k] = v
+    return result

@@ -1,0 +1,198 @@
+"""FrustumShapeNet: Frustum PointNets v1 with a cuboid shape head and a classification head.
+
+Pipeline for a batch of frustums (points in the frustum frame ``F``, see
+:mod:`shape_detector.frustum`):
+
+1. **instance segmentation** PointNet over all ``N`` points (xyz [+ rgb]); per-point
+   logits from [local feature, global feature, class one-hot];
+2. hard mask from the logits; ``num_object_points`` predicted-foreground points are
+   gathered (with replacement; all points if none is foreground) and centred on the
+   mean of the masked points;
+3. **T-Net** regresses a residual centre (stage-1 centre = mask mean + residual);
+4. **box PointNet** on the points relative to the stage-1 centre -> global feature;
+   (a) amodal box head: centre residual, ``NH`` heading bins + normalised residuals,
+   ``NS`` size clusters + normalised residuals (see :mod:`.box_coder`);
+   (b) shape head: ``M`` cuboid primitives in the canonical object frame (see
+   :mod:`.primitives`), from the box feature and (``shape_branch="canonical"``) a small
+   PointNet over the object points in the canonical frame of a box (``shape_box``: the GT
+   box while training, the predicted box otherwise), divided by the box size;
+   (c) classification head over [segmentation global feature, box feature] (no class
+   one-hot input), ``num_classes + 1`` logits, background last; a temperature buffer
+   ``cls_temperature`` (set by calibration after training) scales them at inference.
+
+The class one-hot may be all zeros (class-agnostic proposals); training drops it at random.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from .box_coder import box_head_channels, decode_heading, decode_size, gather_bin, split_box_head
+from .config import ModelConfig
+from .pointnet import FCHead, SharedMLP
+
+
+class FrustumShapeNet(nn.Module):
+    def __init__(self, config: ModelConfig | None = None) -> None:
+        super().__init__()
+        self.config = cfg = config or ModelConfig()
+        nc = cfg.num_classes
+        bn = cfg.batchnorm
+        # 1. segmentation
+        self.seg_mlp = SharedMLP(cfg.in_channels, cfg.seg_widths, bn)
+        local_c = int(cfg.seg_widths[cfg.seg_local_index])
+        global_c = int(cfg.seg_widths[-1])
+        h0 = int(cfg.seg_head_widths[0])
+        # first head layer split so the per-frustum part (global + one-hot) is computed once
+        self.seg_head_local = nn.Linear(local_c, h0, bias=False)
+        self.seg_head_global = nn.Linear(global_c + nc, h0, bias=not bn)
+        self.seg_head_bn = nn.BatchNorm1d(h0) if bn else None
+        self.seg_head_mlp = SharedMLP(h0, cfg.seg_head_widths[1:], bn)
+        self.seg_out = nn.Linear(self.seg_head_mlp.out_channels, 2)
+        # 3. T-Net
+        self.tnet_mlp = SharedMLP(3, cfg.tnet_widths, bn)
+        self.tnet_head = FCHead(int(cfg.tnet_widths[-1]) + nc, cfg.tnet_fc, 3, bn)
+        # 4. box PointNet and heads
+        self.box_mlp = SharedMLP(3, cfg.box_widths, bn)
+        feat_c = int(cfg.box_widths[-1])
+        self.box_head = FCHead(feat_c + nc, cfg.box_fc, box_head_channels(cfg.num_heading_bins, cfg.num_size_clusters), bn)
+        shape_in = feat_c + nc
+        self.shape_mlp = None
+        if cfg.shape_branch == "canonical":
+            self.shape_mlp = SharedMLP(3, cfg.shape_widths, bn)
+            shape_in += int(cfg.shape_widths[-1])
+        self.shape_head = FCHead(shape_in, cfg.shape_fc, cfg.num_primitives * 10, bn)
+        self.cls_head = FCHead(global_c + feat_c, cfg.cls_fc, cfg.num_cls_outputs, bn, dropout=cfg.cls_dropout)
+        self.register_buffer("cls_temperature", torch.tensor(1.0))
+        self.register_buffer("mean_sizes", torch.tensor(cfg.mean_sizes, dtype=torch.float32))
+        self._init_shape_head()
+
+    def _init_shape_head(self) -> None:
+        """Start primitives as identity-rotated, medium-sized cuboids spread over the box."""
+        M = self.config.num_primitives
+        out = self.shape_head.out
+        with torch.no_grad():
+            out.weight.mul_(0.1)
+            b = torch.zeros(M, 10)
+            b[:, 0:3] = math.log(0.35 / 0.65)  # sigmoid -> 0.35 of the box size
+            b[:, 3] = 1.0  # quaternion w
+            g = torch.Generator().manual_seed(0)
+            b[:, 7:10] = (torch.rand(M, 3, generator=g) - 0.5) * 1.6
+            out.bias.copy_(b.reshape(-1))
+
+    # ------------------------------------------------------------------ pieces
+    def segment(self, pts: torch.Tensor, one_hot: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Per-point logits (B,N,2) and the global segmentation feature (B,C)."""
+        cfg = self.config
+        outs = self.seg_mlp(pts[..., : cfg.in_channels], return_all=True)
+        local = outs[cfg.seg_local_index]
+        glob = outs[-1].max(dim=1).values
+        h = self.seg_head_local(local) + self.seg_head_global(torch.cat([glob, one_hot], 1)).unsqueeze(1)
+        if self.seg_head_bn is not None:
+            shape = h.shape
+            h = self.seg_head_bn(h.reshape(-1, shape[-1])).reshape(shape)
+        h = self.seg_head_mlp(torch.relu(h))
+        return self.seg_out(h), glob
+
+    def gather_object_points(
+        self, xyz: torch.Tensor, fg: torch.Tensor, random: bool
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Gather ``num_object_points`` foreground points (with replacement).
+
+        ``xyz`` (B,N,3), ``fg`` (B,N) bool. Returns the gathered points (B,NO,3), the
+        masked-point mean (B,3) and the foreground count (B,) (rows without foreground
+        use all points). ``random`` picks a random subset, otherwise evenly spread ones.
+        """
+        B, N, _ = xyz.shape
+        NO = self.config.num_object_points
+        count = fg.sum(1)
+        fg = fg | (count == 0).unsqueeze(1)
+        k = fg.sum(1)
+        key = fg.to(xyz.dtype)
+        if random:
+            key = key + torch.rand(B, N, device=xyz.device, dtype=xyz.dtype)
+        else:
+            key = key - torch.arange(N, device=xyz.device, dtype=xyz.dtype) / (2 * N)
+        order = key.argsort(dim=1, descending=True)
+        ar = torch.arange(NO, device=xyz.device).unsqueeze(0)
+        kk = k.unsqueeze(1)
+        j = torch.where(kk >= NO, (ar * kk) // NO, ar % kk)
+        idx = order.gather(1, j)
+        obj = xyz.gather(1, idx.unsqueeze(-1).expand(-1, -1, 3))
+        fgf = fg.to(xyz.dtype).unsqueeze(-1)
+        mean = (xyz * fgf).sum(1) / k.clamp_min(1).to(xyz.dtype).unsqueeze(-1)
+        return obj, mean, count
+
+    # ------------------------------------------------------------------ forward
+    def forward(
+        self,
+        points: torch.Tensor,
+        one_hot: torch.Tensor,
+        random_gather: bool | None = None,
+        fg_override: torch.Tensor | None = None,
+        shape_box: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
+    ) -> dict[str, torch.Tensor]:
+        """``points`` (B,N,>=3) frame F [+ rgb], ``one_hot`` (B,num_classes) (zeros allowed).
+
+        ``fg_override`` (B,N) bool replaces the predicted hard mask (e.g. GT mask for
+        teacher forcing); ``shape_box`` = (centre (B,3), heading (B,), size (B,3)) in F
+        canonicalises the shape branch's input (default: the predicted box, detached).
+        Returns a dict of tensors (see the module docstring); ``box_heading``,
+        ``box_size``, ``box_cluster`` are the decoded predicted box (size cluster = the
+        given class, else the size head's argmax), detached.
+        """
+        cfg = self.config
+        if random_gather is None:
+            random_gather = self.training
+        seg_logits, seg_glob = self.segment(points, one_hot)
+        xyz = points[..., :3]
+        fg = fg_override if fg_override is not None else (seg_logits[..., 1] > seg_logits[..., 0])
+        obj, mask_mean, fg_count = self.gather_object_points(xyz, fg, random_gather)
+        # T-Net
+        local = obj - mask_mean.unsqueeze(1)
+        tfeat = self.tnet_mlp(local).max(dim=1).values
+        center_delta = self.tnet_head(torch.cat([tfeat, one_hot], 1))
+        stage1 = mask_mean + center_delta
+        # box PointNet
+        local = local - center_delta.unsqueeze(1)
+        feat = self.box_mlp(local).max(dim=1).values
+        fo = torch.cat([feat, one_hot], 1)
+        heads = split_box_head(self.box_head(fo), cfg.num_heading_bins, cfg.num_size_clusters)
+        center = stage1 + heads["center_res"]
+        with torch.no_grad():
+            hcls = heads["heading_scores"].argmax(1)
+            heading = decode_heading(hcls, gather_bin(heads["heading_res_norm"], hcls), cfg.num_heading_bins)
+            given = one_hot.sum(1) > 0
+            cluster = torch.where(given, one_hot.argmax(1), heads["size_scores"].argmax(1))
+            size = decode_size(cluster, gather_bin(heads["size_res_norm"], cluster), self.mean_sizes).clamp_min(0.02)
+        shape_in = fo
+        if self.shape_mlp is not None:
+            if shape_box is None:
+                sc, sh, ss = center.detach(), heading, size
+            else:
+                sc, sh, ss = (t.detach() for t in shape_box)
+            d = obj - sc.unsqueeze(1)
+            c, s = torch.cos(sh).unsqueeze(1), torch.sin(sh).unsqueeze(1)
+            q = torch.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], d[..., 2]], -1)
+            q = q / ss.clamp_min(0.02).unsqueeze(1)
+            shape_in = torch.cat([fo, self.shape_mlp(q).max(dim=1).values], 1)
+        out: dict[str, torch.Tensor] = {
+            "seg_logits": seg_logits,
+            "fg_count": fg_count,
+            "mask_mean": mask_mean,
+            "stage1_center": stage1,
+            "center": center,
+            "box_heading": heading,
+            "box_size": size,
+            "box_cluster": cluster,
+            "shape_raw": self.shape_head(shape_in).view(-1, cfg.num_primitives, 10),
+            "cls_logits": self.cls_head(torch.cat([seg_glob, feat], 1)),
+        }
+        out.update(heads)
+        return out
+
+    def num_parameters(self) -> int:
+        return sum(p.numel() for p in self.parameters())

@@ -1,0 +1,93 @@
+"""PointNet building blocks, channels-last.
+
+Point features are ``(B, N, C)`` tensors; a shared (per-point) MLP is a stack of
+``nn.Linear`` layers applied to the last axis (on CPU a plain GEMM over ``B*N`` rows is
+faster than ``Conv1d`` with kernel 1), each followed by optional BatchNorm (statistics
+over all ``B*N`` points, so a single frustum at inference is fine in eval mode) and ReLU.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+
+
+class PointLinear(nn.Module):
+    """One shared per-point layer: Linear -> (BatchNorm) -> ReLU on ``(..., C)``."""
+
+    def __init__(self, c_in: int, c_out: int, batchnorm: bool = True, relu: bool = True) -> None:
+        super().__init__()
+        self.linear = nn.Linear(c_in, c_out, bias=not batchnorm)
+        self.bn = nn.BatchNorm1d(c_out) if batchnorm else None
+        self.relu = relu
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = self.linear(x)
+        if self.bn is not None:
+            shape = y.shape
+            y = self.bn(y.reshape(-1, shape[-1])).reshape(shape)
+        return torch.relu(y) if self.relu else y
+
+
+class SharedMLP(nn.Module):
+    """A stack of :class:`PointLinear` layers; ``forward`` may return every layer's output."""
+
+    def __init__(self, c_in: int, widths: Sequence[int], batchnorm: bool = True) -> None:
+        super().__init__()
+        layers = []
+        c = c_in
+        for w in widths:
+            layers.append(PointLinear(c, int(w), batchnorm))
+            c = int(w)
+        self.layers = nn.ModuleList(layers)
+        self.out_channels = c
+
+    def forward(self, x: torch.Tensor, return_all: bool = False):
+        outs = []
+        for layer in self.layers:
+            x = layer(x)
+            outs.append(x)
+        return outs if return_all else x
+
+
+class FCHead(nn.Module):
+    """Fully connected layers (Linear -> BN -> ReLU [-> dropout]) and a linear output."""
+
+    def __init__(
+        self,
+        c_in: int,
+        widths: Sequence[int],
+        c_out: int,
+        batchnorm: bool = True,
+        dropout: float = 0.0,
+    ) -> None:
+        super().__init__()
+        layers: list[nn.Module] = []
+        c = c_in
+        for w in widths:
+            layers.append(PointLinear(c, int(w), batchnorm))
+            if dropout > 0:
+                layers.append(nn.Dropout(dropout))
+            c = int(w)
+        self.body = nn.Sequential(*layers)
+        self.out = nn.Linear(c, c_out)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.out(self.body(x))
+
+
+def masked_max(x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    """Max over the point axis of ``x`` (B, N, C); ``mask`` (B, N) bool limits the points."""
+    if mask is None:
+        return x.max(dim=1).values
+    neg = torch.finfo(x.dtype).min
+    return x.masked_fill(~mask.unsqueeze(-1), neg).max(dim=1).values
+
+
+def set_bn_momentum(module: nn.Module, momentum: float) -> None:
+    """Set the momentum of every BatchNorm layer (torch convention: weight of the new batch)."""
+    for m in module.modules():
+        if isinstance(m, nn.modules.batchnorm._BatchNorm):
+            m.momentum = float(momentum)

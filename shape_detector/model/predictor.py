@@ -1,0 +1,225 @@
+"""Inference wrapper: frustums in, camera-frame boxes + primitives + scores out.
+
+One batched forward per call (frustums with different point counts are run as one
+batch per count). Scores:
+
+* class given (``class_ids[i]`` not None): ``class_name`` is the given class and
+  ``score`` the calibrated objectness ``1 - p(background)``;
+* class-agnostic (None): the one-hot is zeros, ``class_name`` is the argmax of the
+  calibrated class probabilities over the foreground classes and ``score`` its probability.
+
+The box size cluster is the given class, else the size head's argmax (as in Frustum
+PointNets). Probabilities come from the temperature-scaled
+softmax of the classification head (temperature stored in the weights). Weights trained
+without the ``cls`` task fall back to the mean foreground probability of the predicted
+foreground points as score. Frustums with no valid point get score 0.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from ..classes import CLASSES
+from ..frustum import Frustum
+from ..geometry import rot_z, wrap_angle
+from ..types import Cuboid
+from .config import ModelConfig
+from .io import default_weights_path, load_weights
+from .network import FrustumShapeNet
+from .primitives import primitive_params
+
+BACKGROUND = "background"
+
+
+@dataclass
+class FrustumPrediction:
+    """Network output for one frustum; 3D quantities in the **camera** frame (metres).
+
+    ``class_probs`` (num_classes+1,), background last; ``rotation`` columns = box axes
+    (z column = gravity-up); ``primitives`` camera-frame cuboids after pruning;
+    ``primitives_canonical`` the same in the canonical object frame (box centre, x =
+    heading, z up, metres) for composing with another box (e.g. the GT one);
+    ``seg_prob`` (N,) foreground probability of each frustum point; ``center_F`` /
+    ``heading_F`` the box in the frustum frame.
+    """
+
+    class_name: str
+    class_probs: np.ndarray
+    score: float
+    center: np.ndarray
+    size: np.ndarray
+    rotation: np.ndarray
+    heading_U: float
+    primitives: list[Cuboid]
+    seg_prob: np.ndarray
+    num_points_valid: int
+    objectness: float = 0.0
+    center_F: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    heading_F: float = 0.0
+    primitives_canonical: list[Cuboid] = field(default_factory=list)
+
+
+def resolve_device(device: str | torch.device | None) -> torch.device:
+    """``"auto"``/None -> cuda when available else cpu; otherwise ``torch.device(device)``."""
+    if device is None or str(device) == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(device)
+
+
+class FrustumPredictor:
+    """Loads weights once; :meth:`predict` runs one batched forward per call.
+
+    ``weights``: a weights/checkpoint file; None uses the packaged
+    ``shape_detector/weights/default.pt`` (falls back to a randomly initialised network
+    with a warning when that file is missing -- outputs are then meaningless).
+    ``device``: ``"cpu"``, ``"cuda"`` or ``"auto"``; ``num_threads`` sets torch's CPU threads.
+    """
+
+    def __init__(
+        self,
+        weights: str | Path | None = None,
+        device: str | torch.device = "cpu",
+        num_threads: int | None = None,
+    ) -> None:
+        if num_threads is not None:
+            torch.set_num_threads(int(num_threads))
+        self.device = resolve_device(device)
+        self.meta: dict = {}
+        if weights is None:
+            p = default_weights_path()
+            if p.is_file():
+                weights = p
+            else:
+                warnings.warn(f"no packaged weights at {p}; using a randomly initialised network", stacklevel=2)
+        if weights is None:
+            torch.manual_seed(0)
+            self.model = FrustumShapeNet(ModelConfig()).to(self.device).eval()
+            self.weights_path = None
+        else:
+            self.load_weights(weights)
+
+    def load_weights(self, path: str | Path) -> None:
+        self.model, self.meta = load_weights(path, self.device)
+        self.weights_path = Path(path)
+
+    @property
+    def config(self) -> ModelConfig:
+        return self.model.config
+
+    @property
+    def num_points(self) -> int:
+        """Points per frustum the network was trained with (extract frustums with this)."""
+        return int(self.config.num_points)
+
+    @property
+    def has_class_head(self) -> bool:
+        tasks = self.meta.get("tasks")
+        return tasks is None or "cls" in tasks
+
+    # --------------------------------------------------------------------------
+    @torch.inference_mode()
+    def forward_arrays(self, points: np.ndarray, one_hot: np.ndarray) -> dict[str, np.ndarray]:
+        """Raw batched forward on (B,N,6) points / (B,C) one-hot; decoded frame-F arrays."""
+        cfg = self.config
+        pts = torch.as_tensor(np.asarray(points, np.float32), device=self.device)
+        oh = torch.as_tensor(np.asarray(one_hot, np.float32), device=self.device)
+        out = self.model(pts, oh, random_gather=False)
+        T = self.model.cls_temperature.clamp_min(1e-3)
+        probs = torch.softmax(out["cls_logits"] / T, dim=1)
+        seg_prob = torch.softmax(out["seg_logits"], dim=-1)[..., 1]
+        cluster, heading, size = out["box_cluster"], out["box_heading"], out["box_size"]
+        prims = primitive_params(out["shape_raw"], size, cfg.primitive_min_size_frac)
+        fg = seg_prob > 0.5
+        fg_score = (seg_prob * fg).sum(1) / fg.sum(1).clamp_min(1)
+        res = {
+            "probs": probs,
+            "seg_prob": seg_prob,
+            "center": out["center"],
+            "heading": heading,
+            "size": size,
+            "cluster": cluster,
+            "fg_score": fg_score,
+            "prim_center": prims["center"],
+            "prim_size": prims["size"],
+            "prim_rotation": prims["rotation"],
+        }
+        return {k: v.detach().float().cpu().numpy() for k, v in res.items()}
+
+    def predict(self, frustums: Sequence[Frustum], class_ids: Sequence[int | None] | None = None) -> list[FrustumPrediction]:
+        """Predictions for ``frustums`` (class ids: index into CLASSES, or None = unknown)."""
+        n = len(frustums)
+        if class_ids is None:
+            class_ids = [None] * n
+        if len(class_ids) != n:
+            raise ValueError("class_ids must match frustums")
+        if n == 0:
+            return []
+        nc = self.config.num_classes
+        results: list[FrustumPrediction | None] = [None] * n
+        groups: dict[int, list[int]] = {}
+        for i, f in enumerate(frustums):
+            groups.setdefault(int(f.points.shape[0]), []).append(i)
+        for _, idx in groups.items():
+            pts = np.stack([frustums[i].points[:, :6] for i in idx]).astype(np.float32)
+            oh = np.zeros((len(idx), nc), np.float32)
+            for j, i in enumerate(idx):
+                c = class_ids[i]
+                if c is not None:
+                    oh[j, int(c)] = 1.0
+            arr = self.forward_arrays(pts, oh)
+            for j, i in enumerate(idx):
+                results[i] = self._decode_one(frustums[i], class_ids[i], arr, j)
+        return results  # type: ignore[return-value]
+
+    def _decode_one(self, fr: Frustum, cid: int | None, arr: dict[str, np.ndarray], j: int) -> FrustumPrediction:
+        cfg = self.config
+        nc = cfg.num_classes
+        probs = arr["probs"][j].astype(np.float64)
+        objectness = float(1.0 - probs[nc])
+        if cid is not None:
+            cname = CLASSES[int(cid)]
+            score = objectness
+        else:
+            k = int(np.argmax(probs[:nc]))
+            cname = CLASSES[k]
+            score = float(probs[k])
+        if not self.has_class_head:
+            score = float(arr["fg_score"][j])
+        if fr.valid <= 0:
+            score = 0.0
+        R_cf = fr.R_cf
+        center_F = arr["center"][j].astype(np.float64)
+        heading_F = float(arr["heading"][j])
+        size = arr["size"][j].astype(np.float64)
+        R_box = R_cf @ rot_z(heading_F)
+        center = R_cf @ center_F
+        # primitives: prune low-volume ones (keep at least the largest)
+        pc, ps, pr = arr["prim_center"][j], arr["prim_size"][j], arr["prim_rotation"][j]
+        vol = np.prod(ps.astype(np.float64), axis=1)
+        keep = vol >= cfg.prune_volume_frac * float(np.prod(size))
+        if not keep.any():
+            keep[int(np.argmax(vol))] = True
+        canon = [Cuboid(pc[m], ps[m], pr[m]) for m in np.nonzero(keep)[0]]
+        prims = [c.transformed(R_box, center) for c in canon]
+        return FrustumPrediction(
+            class_name=cname,
+            class_probs=probs,
+            score=float(np.clip(score, 0.0, 1.0)),
+            center=center,
+            size=size,
+            rotation=R_box,
+            heading_U=float(wrap_angle(heading_F - fr.phi)),
+            primitives=prims,
+            seg_prob=arr["seg_prob"][j].astype(np.float32),
+            num_points_valid=int(fr.valid),
+            objectness=objectness,
+            center_F=center_F,
+            heading_F=heading_F,
+            primitives_canonical=canon,
+        )

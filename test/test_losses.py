@@ -1,0 +1,94 @@
+"""Losses: task / weak-supervision masking and a tiny overfit run where every loss drops."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from shape_detector.model.config import ModelConfig
+from shape_detector.model.losses import compute_losses, huber, parse_tasks
+from shape_detector.model.network import FrustumShapeNet
+from shape_detector.training import frustum_dataset as fds
+from shape_detector.training.train import TensorData, TrainConfig
+
+from test_model_scene import make_frame
+
+SMALL = dict(num_points=256, num_object_points=128, seg_widths=(32, 32, 64, 128), seg_head_widths=(64, 32),
+             tnet_widths=(32, 64), tnet_fc=(64,), box_widths=(32, 64, 128), box_fc=(128, 64), shape_fc=(128,),
+             cls_fc=(64,))
+
+
+def _data(n_frames=3, neg=1):
+    frames = [make_frame(s, 2) for s in range(n_frames)]
+    ds = fds.build_frustum_dataset(frames, num_points=256, augment_copies=1, rng_seed=0, negatives_per_frame=neg)
+    return ds
+
+
+def test_huber_and_tasks():
+    x = torch.tensor([-3.0, -0.5, 0.0, 0.5, 3.0])
+    assert torch.allclose(huber(x, 1.0), torch.tensor([2.5, 0.125, 0.0, 0.125, 2.5]))
+    assert parse_tasks("box, cls") == {"box", "cls"}
+    try:
+        parse_tasks("box,foo")
+    except ValueError:
+        pass
+    else:
+        raise AssertionError("bad task accepted")
+
+
+def test_task_flags_and_weak_supervision_masks():
+    torch.manual_seed(0)
+    ds = _data(2, neg=2)
+    data = TensorData(ds, torch.device("cpu"), 10)
+    net = FrustumShapeNet(ModelConfig(**SMALL))
+    idx = torch.arange(data.n)
+    b = data.batch(idx, TrainConfig(), augment=False, one_hot_mode="given")
+    out = net(b["points"], b["one_hot"])
+    full = compute_losses(out, b, net.mean_sizes, "box,shape,cls")
+    assert {"seg", "center", "stage1_center", "corner", "coverage", "consistency", "part", "cls"} <= set(full)
+    det = compute_losses(out, b, net.mean_sizes, "box,cls")
+    assert "coverage" not in det and "corner" in det
+    shp = compute_losses(out, b, net.mean_sizes, "shape")
+    assert "corner" not in shp and "cls" not in shp and "coverage" in shp and "seg" in shp
+    # negatives only: seg + cls, no box / shape terms
+    neg = b["is_negative"]
+    assert bool(neg.any())
+    nb = {k: v[neg] for k, v in b.items()}
+    no = {k: v[neg] for k, v in out.items()}
+    L = compute_losses(no, nb, net.mean_sizes, "box,shape,cls")
+    assert set(k for k in L if not k.startswith("stat_")) == {"seg", "cls", "total"}
+    # no shape GT -> no shape losses (weak supervision), box losses still there
+    pos = ~neg
+    pb = {k: v[pos] for k, v in b.items()}
+    pb["has_shape"] = torch.zeros_like(pb["has_shape"])
+    L = compute_losses({k: v[pos] for k, v in out.items()}, pb, net.mean_sizes, "box,shape,cls")
+    assert "coverage" not in L and "corner" in L
+    # the shape head gets gradient only from the shape losses
+    net.zero_grad()
+    det["total"].backward(retain_graph=True)
+    assert all(p.grad is None or float(p.grad.abs().sum()) == 0 for p in net.shape_head.parameters())
+
+
+def test_tiny_overfit_all_losses_decrease():
+    torch.manual_seed(0)
+    torch.set_num_threads(2)
+    ds = _data(3, neg=1)
+    data = TensorData(ds, torch.device("cpu"), 10)
+    net = FrustumShapeNet(ModelConfig(**SMALL))
+    opt = torch.optim.Adam(net.parameters(), lr=3e-3)
+    idx = torch.arange(data.n)
+    b = data.batch(idx, TrainConfig(), augment=False, one_hot_mode="given")
+    hist = []
+    for step in range(60):
+        net.train()
+        out = net(b["points"], b["one_hot"])
+        L = compute_losses(out, b, net.mean_sizes, "box,shape,cls", l_nearest=1)
+        opt.zero_grad()
+        L["total"].backward()
+        opt.step()
+        hist.append({k: float(v.detach()) for k, v in L.items()})
+    first = {k: np.mean([h[k] for h in hist[:3]]) for k in hist[0]}
+    last = {k: np.mean([h[k] for h in hist[-3:]]) for k in hist[0]}
+    assert last["total"] < 0.35 * first["total"], (first["total"], last["total"])
+    for k in ("seg", "center", "corner", "size_res", "heading_cls", "coverage", "consistency", "part", "cls"):
+        assert last[k] < first[k], (k, first[k], last[k])

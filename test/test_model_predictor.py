@@ -1,0 +1,134 @@
+"""Network shapes and the predictor's frame conventions (frustum frame F -> camera)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from shape_detector.classes import CLASSES, class_id
+from shape_detector.frustum import extract_frustum
+from shape_detector.geometry import normalize, rot_z, rotation_to_heading, wrap_angle
+from shape_detector.model.config import ModelConfig
+from shape_detector.model.io import load_weights, save_weights
+from shape_detector.model.network import FrustumShapeNet
+from shape_detector.model.predictor import FrustumPrediction, FrustumPredictor
+
+from test_model_scene import make_frame
+
+SMALL = dict(num_points=128, num_object_points=64, seg_widths=(16, 16, 32), seg_head_widths=(16,),
+             tnet_widths=(16, 32), tnet_fc=(16,), box_widths=(16, 32), box_fc=(32,), shape_fc=(32,), cls_fc=(16,))
+
+
+@pytest.fixture(scope="module")
+def weights(tmp_path_factory):
+    torch.manual_seed(0)
+    net = FrustumShapeNet(ModelConfig(**SMALL))
+    p = tmp_path_factory.mktemp("w") / "w.pt"
+    save_weights(net, p, meta={"tasks": ["box", "cls", "shape"]})
+    return p
+
+
+def test_network_forward_shapes_single_frustum_eval():
+    torch.set_num_threads(1)
+    cfg = ModelConfig(**SMALL)
+    net = FrustumShapeNet(cfg).eval()
+    x = torch.randn(1, 100, 6)
+    with torch.no_grad():
+        out = net(x, torch.zeros(1, 10))
+    assert out["seg_logits"].shape == (1, 100, 2)
+    assert out["shape_raw"].shape == (1, cfg.num_primitives, 10)
+    assert out["cls_logits"].shape == (1, 11)
+    assert out["heading_scores"].shape == (1, 12) and out["size_res_norm"].shape == (1, 10, 3)
+    # training mode with a batch works, and a frustum without foreground falls back to all points
+    net.train()
+    x = torch.randn(4, 100, 6)
+    out = net(x, torch.eye(10)[:4], fg_override=torch.zeros(4, 100, dtype=torch.bool))
+    assert torch.allclose(out["mask_mean"], x[..., :3].mean(1), atol=1e-6)
+    assert int(out["fg_count"].sum()) == 0
+
+
+def test_gather_object_points_uses_only_foreground():
+    net = FrustumShapeNet(ModelConfig(**SMALL))
+    xyz = torch.arange(2 * 10 * 3, dtype=torch.float32).view(2, 10, 3)
+    fg = torch.zeros(2, 10, dtype=torch.bool)
+    fg[0, [2, 5]] = True
+    for random in (False, True):
+        obj, mean, cnt = net.gather_object_points(xyz, fg, random)
+        assert obj.shape == (2, 64, 3)
+        rows0 = {tuple(r) for r in obj[0].tolist()}
+        assert rows0 == {tuple(xyz[0, 2].tolist()), tuple(xyz[0, 5].tolist())}
+        assert torch.allclose(mean[0], xyz[0, [2, 5]].mean(0))
+        assert torch.allclose(mean[1], xyz[1].mean(0))  # no foreground -> all points
+        assert cnt.tolist() == [2, 0]
+
+
+def test_weights_round_trip_float16(weights, tmp_path):
+    net, meta = load_weights(weights)
+    assert meta["tasks"] == ["box", "cls", "shape"]
+    assert net.config.num_points == 128 and not net.training
+    net.cls_temperature.fill_(2.5)
+    p = save_weights(net, tmp_path / "again.pt")
+    net2, _ = load_weights(p)
+    assert float(net2.cls_temperature) == pytest.approx(2.5)
+    for (k, a), (_, b) in zip(net.state_dict().items(), net2.state_dict().items()):
+        assert torch.allclose(a.float(), b.float(), atol=1e-2, rtol=1e-2), k
+
+
+def test_predictor_outputs_in_camera_frame(weights):
+    frame = make_frame(5, 2)
+    pred = FrustumPredictor(weights, device="cpu", num_threads=1)
+    frs = [
+        extract_frustum(frame.rgb, frame.depth, frame.K, o.box2d, pred.num_points, up=frame.up, rng=np.random.default_rng(0))
+        for o in frame.objects
+    ]
+    ids = [class_id(frame.objects[0].class_name)] + [None] * (len(frs) - 1)
+    out = pred.predict(frs, ids)
+    assert len(out) == len(frs)
+    up = normalize(frame.up)
+    for p, fr in zip(out, frs):
+        assert isinstance(p, FrustumPrediction)
+        assert p.class_name in CLASSES and p.class_probs.shape == (11,)
+        assert abs(p.class_probs.sum() - 1) < 1e-5 and 0.0 <= p.score <= 1.0
+        assert p.center.shape == (3,) and p.size.shape == (3,) and p.rotation.shape == (3, 3)
+        assert np.allclose(p.rotation @ p.rotation.T, np.eye(3), atol=1e-6)
+        assert np.allclose(p.rotation[:, 2], up, atol=1e-6)
+        assert np.allclose(p.center, fr.R_cf @ p.center_F)
+        assert abs(wrap_angle(rotation_to_heading(p.rotation, frame.up) - p.heading_U)) < 1e-6
+        assert p.seg_prob.shape == (pred.num_points,) and p.num_points_valid == fr.valid
+        assert 1 <= len(p.primitives) <= 6 and len(p.primitives) == len(p.primitives_canonical)
+        for c, cc in zip(p.primitives, p.primitives_canonical):
+            assert np.allclose(c.rotation @ c.rotation.T, np.eye(3), atol=1e-5)
+            assert np.allclose(c.center, p.center + p.rotation @ cc.center, atol=1e-6)
+    assert out[0].class_name == frame.objects[0].class_name
+    assert pred.predict([], []) == []
+
+
+def test_predictor_decodes_known_box_to_gt(weights):
+    """A decoded frame-F box equal to the GT gives back the GT camera-frame box."""
+    frame = make_frame(7, 1)
+    obj = frame.objects[0]
+    pred = FrustumPredictor(weights)
+    fr = extract_frustum(frame.rgb, frame.depth, frame.K, obj.box2d, pred.num_points, up=frame.up)
+    heading_u = rotation_to_heading(obj.rotation, frame.up)
+    M = pred.config.num_primitives
+    arr = {
+        "probs": np.full((1, 11), 1 / 11), "seg_prob": np.zeros((1, pred.num_points)),
+        "center": (fr.R_cf.T @ obj.center)[None], "heading": np.array([heading_u + fr.phi]),
+        "size": obj.size[None], "cluster": np.array([class_id(obj.class_name)]), "fg_score": np.zeros(1),
+        "prim_center": np.zeros((1, M, 3)), "prim_size": np.tile(obj.size / 2, (1, M, 1)),
+        "prim_rotation": np.tile(np.eye(3), (1, M, 1, 1)),
+    }
+    p = pred._decode_one(fr, None, arr, 0)
+    assert np.allclose(p.center, obj.center, atol=1e-6)
+    assert np.allclose(p.rotation, obj.rotation, atol=1e-6)
+    assert abs(wrap_angle(p.heading_U - obj.heading)) < 1e-6
+    assert np.allclose(p.primitives[0].center, obj.center, atol=1e-6)
+    assert np.allclose(p.primitives[0].rotation, obj.rotation, atol=1e-6)
+
+
+def test_bench_network_smoke(weights):
+    from shape_detector.model.bench import bench_network
+
+    r = bench_network(counts=(1, 2), weights=weights, num_threads=1, repeats=2, warmup=1, verbose=False)
+    assert set(r["results"]) == {1, 2} and r["results"][2]["median_ms"] > 0

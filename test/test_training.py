@@ -1,0 +1,147 @@
+"""Frustum dataset building, batch augmentation, training / checkpoint / resume, CLI."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from shape_detector.geometry import points_in_box, rot_z
+from shape_detector.model.io import load_checkpoint, load_weights
+from shape_detector.model.primitives import coverage_loss
+from shape_detector.training import frustum_dataset as fds
+from shape_detector.training.train import TensorData, TrainConfig, calibration_stats, fit_temperature, train
+
+from test_model_scene import make_frame
+
+SMALL = dict(num_points=128, num_object_points=64, seg_widths=[16, 16, 32], seg_head_widths=[16], tnet_widths=[16, 32],
+             tnet_fc=[16], box_widths=[16, 32], box_fc=[32], shape_fc=[32], cls_fc=[16])
+
+
+@pytest.fixture(scope="module")
+def ds():
+    frames = [make_frame(s, 3) for s in range(6)]
+    return fds.build_frustum_dataset(frames, num_points=128, augment_copies=2, rng_seed=0, negatives_per_frame=2)
+
+
+def test_dataset_ground_truth_is_consistent(ds, tmp_path):
+    s = fds.summary(ds)
+    assert s["positives"] > 10 and s["negatives"] > 0 and s["frames"] == 6
+    pos = np.nonzero(~ds["is_negative"])[0]
+    for i in pos:
+        p = ds["points"][i, :, :3].astype(np.float64)
+        fg = ds["seg"][i] == 1
+        assert fg.sum() > 0
+        R = rot_z(float(ds["heading"][i]))
+        inside = points_in_box(p[fg], ds["center"][i], ds["size"][i], R, margin=0.03)
+        assert inside.mean() > 0.97
+        # canonical parts lie inside the box, the surface samples on them
+        k = int(ds["parts_count"][i])
+        half = ds["size"][i] / 2 + 1e-3
+        assert np.all(np.abs(ds["parts_center"][i, :k]) <= half)
+        assert np.all(np.abs(ds["surface"][i].astype(np.float64)) <= half + 2e-3)
+        # frame meta: F -> camera reproduces the camera-frame points of the frame
+        assert ds["R_cu"][i].shape == (3, 3)
+    neg = ds["is_negative"]
+    assert np.all(ds["seg"][neg] == 0) and np.all(fds.cls_labels(ds)[neg] == 10)
+    p = fds.save(ds, tmp_path / "f.npz")
+    back = fds.load(p)
+    assert set(back) == set(ds)
+    assert np.array_equal(back["points"], ds["points"]) and fds.dataset_config(back)["num_points"] == 128
+    tr, va = fds.split_by_frame(ds, 0.34, seed=0)
+    assert not set(tr["frame_index"]) & set(va["frame_index"])
+    assert fds.num_frustums(tr) + fds.num_frustums(va) == fds.num_frustums(ds)
+
+
+def test_augmented_batches_stay_consistent(ds):
+    data = TensorData(ds, torch.device("cpu"), 10)
+    cfg = TrainConfig(mirror_prob=1.0, point_jitter=0.0, scale_min=0.9, scale_max=1.1)
+    pos = torch.as_tensor(np.nonzero(~ds["is_negative"])[0])
+    b = data.batch(pos, cfg, augment=True, generator=torch.Generator().manual_seed(0))
+    b0 = data.batch(pos, cfg, augment=False, one_hot_mode="given")
+    assert torch.allclose(b["heading"], np.pi - b0["heading"])
+    for j in range(len(pos)):
+        p = b["points"][j, :, :3].double().numpy()
+        fg = b["seg"][j].numpy() == 1
+        R = rot_z(float(b["heading"][j]))
+        assert points_in_box(p[fg], b["center"][j].double().numpy(), b["size"][j].double().numpy(), R, margin=0.04).mean() > 0.97
+    # GT parts still cover the GT surface samples after mirroring + scaling
+    prims = {"center": b["parts_center"], "size": b["parts_size"], "rotation": b["parts_rotation"]}
+    m = b["parts_mask"]
+    prims = {k: torch.where(m.view(*m.shape, *([1] * (v.dim() - 2))), v, torch.zeros_like(v)) for k, v in prims.items()}
+    cov = coverage_loss(b["surface"], prims, 1)
+    assert float(cov.max()) < 1e-4
+    # one-hot dropout: some rows all zero, the others one class
+    bt = data.batch(torch.arange(data.n), TrainConfig(onehot_drop_prob=0.5), augment=False, one_hot_mode="train",
+                    generator=torch.Generator().manual_seed(1))
+    rs = bt["one_hot"].sum(1)
+    assert set(rs.tolist()) <= {0.0, 1.0} and 0 < float(rs.mean()) < 1
+
+
+def test_temperature_calibration():
+    rng = np.random.default_rng(0)
+    labels = rng.integers(0, 3, 2000)
+    logits = rng.normal(0, 1, (2000, 3))
+    logits[np.arange(2000), labels] += 1.0
+    T = fit_temperature(logits * 4, labels)  # over-confident by 4x
+    assert 3.0 < T < 5.5
+    before = calibration_stats(np.exp(logits * 4) / np.exp(logits * 4).sum(1, keepdims=True), labels)
+    z = logits * 4 / T
+    after = calibration_stats(np.exp(z) / np.exp(z).sum(1, keepdims=True), labels)
+    assert after["ece"] < before["ece"] and after["nll"] < before["nll"]
+
+
+def _cfg(**kw):
+    d = dict(model=SMALL, epochs=2, batch_size=8, log_every=1000, num_threads=1, val_max_frustums=64, shape_iou_max=32,
+             shape_iou_samples=256)
+    d.update(kw)
+    return TrainConfig.from_dict(d)
+
+
+def test_train_checkpoint_resume_round_trip(ds, tmp_path):
+    tr, va = fds.split_by_frame(ds, 0.34, seed=0)
+    logs = []
+    a = tmp_path / "a"
+    train(_cfg(), tr, va, a, seed=3, print_fn=logs.append)
+    for f in ("checkpoint.pt", "weights.pt", "best.pt", "log.csv", "log.json", "loss_curve.png", "val_metrics.json"):
+        assert (a / f).is_file(), f
+    assert any("ep 2/2" in s for s in logs)
+    vm = json.loads((a / "val_metrics.json").read_text())
+    assert "temperature" in vm["best.pt"]["calibration"] and "box_iou" in vm["best.pt"]["metrics"]
+    ck = load_checkpoint(a / "checkpoint.pt")
+    assert ck["epoch"] == 2 and len(ck["history"]["epochs"]) == 2
+    # 1 epoch, then resume for the 2nd: same weights as the straight run
+    b = tmp_path / "b"
+    train(_cfg(epochs=2), tr, va, b, seed=3, print_fn=logs.append, stop_after_epochs=1)
+    assert load_checkpoint(b / "checkpoint.pt")["epoch"] == 1
+    train(_cfg(epochs=2), tr, va, b, seed=3, resume=True, print_fn=logs.append)
+    ckb = load_checkpoint(b / "checkpoint.pt")
+    assert ckb["epoch"] == 2 and len(ckb["history"]["epochs"]) == 2
+    for k, v in ck["state_dict"].items():
+        assert torch.allclose(v.float(), ckb["state_dict"][k].float(), atol=1e-5), k
+    net, meta = load_weights(b / "weights.pt")
+    assert meta["epoch"] == 2 and meta["tasks"] == ["box", "cls", "shape"]
+    assert (b / "weights.pt").stat().st_size < 3_000_000
+
+
+def test_cli_trains_from_npz_with_task_flags(ds, tmp_path):
+    from shape_detector.training import cli
+
+    p = fds.save(ds, tmp_path / "train.npz")
+    parser = argparse.ArgumentParser()
+    cli.configure_parser(parser)
+    args = parser.parse_args([
+        "--data", str(p), "--out", str(tmp_path / "run"), "--seed", "1", "--epochs", "1", "--tasks", "shape",
+        "--device", "cpu", "--threads", "1",
+        "--set", "model=" + json.dumps(SMALL), "--set", "batch_size=8", "--set", "val_max_frustums=32",
+        "--set", "shape_iou_max=16", "--set", "shape_iou_samples=256",
+    ])
+    assert cli.main(args) == 0
+    vm = json.loads((tmp_path / "run" / "val_metrics.json").read_text())
+    m = vm["best.pt"]["metrics"]
+    assert "shape_iou" in m and "box_iou" not in m and vm["tasks"] == ["shape"]
+    _, meta = load_weights(tmp_path / "run" / "weights.pt")
+    assert meta["tasks"] == ["shape"]
