@@ -2,22 +2,35 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from .types import Object3D
 
 
-def nms_3d(objects: list[Object3D], iou_threshold: float = 0.25) -> list[Object3D]:
-    """Objects sorted by score, dropping any whose 3D IoU with a kept one exceeds the threshold.
-
-    Class-agnostic: two pieces of furniture do not share space, so overlapping boxes of
-    different classes are duplicates of one object from different proposals.
-    """
+def overlap_ratios(a: Object3D, b: Object3D) -> tuple[float, float]:
+    """(IoU, intersection / smaller volume) of two boxes; the second catches nested boxes."""
     from .evaluation.iou import box3d_iou
 
+    iou = box3d_iou(a.center, a.size, a.rotation, b.center, b.size, b.rotation)
+    va, vb = float(np.prod(a.size)), float(np.prod(b.size))
+    inter = iou * (va + vb) / (1.0 + iou)
+    return iou, inter / max(min(va, vb), 1e-12)
+
+
+def nms_3d(objects: list[Object3D], iou_threshold: float = 0.25, containment_threshold: float = 0.7) -> list[Object3D]:
+    """Objects sorted by score, dropping any that overlaps a kept one by more than
+    ``iou_threshold`` (3D IoU) or lies mostly inside it / around it (intersection over the
+    smaller volume above ``containment_threshold``).
+
+    Class-agnostic: two pieces of furniture do not share space, so overlapping boxes of
+    different classes are duplicates of one object from different proposals (a part of
+    an object proposed alone, or an object merged with its neighbour).
+    """
     kept: list[Object3D] = []
     for obj in sorted(objects, key=lambda o: -o.score):
         if all(
-            box3d_iou(obj.center, obj.size, obj.rotation, k.center, k.size, k.rotation) <= iou_threshold
-            for k in kept
+            iou <= iou_threshold and contained <= containment_threshold
+            for iou, contained in (overlap_ratios(obj, k) for k in kept)
         ):
             kept.append(obj)
     return kept
