@@ -16,6 +16,17 @@ from shape_detector.model.predictor import FrustumPrediction, FrustumPredictor
 
 from test_model_scene import make_frame
 
+
+@pytest.fixture(autouse=True)
+def _one_torch_thread():
+    """One intra-op thread: on a shared 2-core machine oversubscribed OpenMP threads make
+    small ops 20x slower; restored afterwards."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
 SMALL = dict(num_points=128, num_object_points=64, seg_widths=(16, 16, 32), seg_head_widths=(16,),
              tnet_widths=(16, 32), tnet_fc=(16,), box_widths=(16, 32), box_fc=(32,), shape_fc=(32,), cls_fc=(16,))
 
@@ -30,7 +41,6 @@ def weights(tmp_path_factory):
 
 
 def test_network_forward_shapes_single_frustum_eval():
-    torch.set_num_threads(1)
     cfg = ModelConfig(**SMALL)
     net = FrustumShapeNet(cfg).eval()
     x = torch.randn(1, 100, 6)
@@ -132,3 +142,30 @@ def test_bench_network_smoke(weights):
 
     r = bench_network(counts=(1, 2), weights=weights, num_threads=1, repeats=2, warmup=1, verbose=False)
     assert set(r["results"]) == {1, 2} and r["results"][2]["median_ms"] > 0
+
+
+def test_old_weights_without_primitive_param_load_as_sigmoid_tanh(tmp_path):
+    net = FrustumShapeNet(ModelConfig(**SMALL))
+    blob = {"model_config": {k: v for k, v in net.config.to_dict().items() if k != "primitive_param"},
+            "state_dict": net.state_dict(), "meta": {}}
+    torch.save(blob, tmp_path / "old.pt")
+    net2, _ = load_weights(tmp_path / "old.pt")
+    assert net2.config.primitive_param == "sigmoid_tanh"
+    assert ModelConfig.from_dict({"num_points": 64}).primitive_param == "exp_linear"
+
+
+def test_fused_batchnorm_matches_eval_network():
+    torch.manual_seed(1)
+    net = FrustumShapeNet(ModelConfig(**SMALL))
+    net.train()
+    for _ in range(3):  # non-trivial running statistics
+        net(torch.randn(8, 128, 6), torch.eye(10)[:8])
+    net.eval()
+    x, oh = torch.randn(3, 128, 6), torch.eye(10)[:3]
+    with torch.no_grad():
+        ref = net(x, oh)
+        fused = net.fuse_batchnorm()
+        got = fused(x, oh)
+    assert not any(isinstance(m, torch.nn.BatchNorm1d) for m in fused.modules())
+    for k in ("seg_logits", "center", "heading_scores", "size_res_norm", "shape_raw", "cls_logits"):
+        assert torch.allclose(ref[k], got[k], atol=1e-4, rtol=1e-4), k

@@ -5,9 +5,20 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from shape_detector.model import primitives as pr
+
+
+@pytest.fixture(autouse=True)
+def _one_torch_thread():
+    """One intra-op thread: on a shared 2-core machine oversubscribed OpenMP threads make
+    small ops 20x slower; restored afterwards."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
 
 
 def _cub(center, size, rot=None):
@@ -122,8 +133,14 @@ def test_consistency_zero_inside_gt_and_positive_outside():
 def test_primitive_params_within_box_and_mc_iou():
     raw = torch.randn(4, 6, 10) * 3
     box = torch.tensor([[1.0, 2.0, 0.8]]).expand(4, 3)
-    p = pr.primitive_params(raw, box)
+    p = pr.primitive_params(raw, box, mode="sigmoid_tanh")
     assert bool((p["size"] <= box.unsqueeze(1) + 1e-6).all()) and bool((p["center"].abs() <= box.unsqueeze(1) / 2 + 1e-6).all())
+    p = pr.primitive_params(raw, box)  # exp_linear: sizes softly capped at 1.25 box, no saturation
+    assert bool((p["size"] <= 1.26 * box.unsqueeze(1)).all()) and bool((p["size"] > 0).all())
+    raw.requires_grad_(True)
+    q = pr.primitive_params(raw, box)
+    (q["size"].sum() + q["center"].sum()).backward()
+    assert bool((raw.grad[..., 7:10].abs() > 0.1).all())  # translation gradient never vanishes
     cen, siz, rot = _parts()
     pc, ps, prot = (torch.tensor(a, dtype=torch.float32)[None] for a in (cen, siz, rot))
     same = {"center": pc, "size": ps, "rotation": prot}
@@ -160,3 +177,17 @@ def test_matched_part_loss_zero_for_permuted_parts_and_finds_assignment():
     sw["rotation"][0, j] = rz
     sw["size"][0, j] = prims["size"][0, j][[1, 0, 2]]
     assert float(pr.matched_part_loss(sw, pc, ps, prot, mask)) < 1e-12
+
+
+def test_volume_consistency_zero_inside_and_penalises_empty_space():
+    cen, siz, rot = _parts()
+    pc, ps, prot = (torch.tensor(a, dtype=torch.float64)[None] for a in (cen, siz, rot))
+    mask = torch.ones(1, 5, dtype=torch.bool)
+    same = {"center": pc, "size": ps, "rotation": prot}
+    assert float(pr.volume_consistency_loss(same, pc, ps, prot, mask)) < 1e-12
+    # a blob between the legs (under the top): its surface touches the legs, its inside is empty
+    blob = {"center": torch.tensor([[[0.0, 0.0, -0.05]]], dtype=torch.float64),
+            "size": torch.tensor([[[0.7, 1.1, 0.7]]], dtype=torch.float64),
+            "rotation": torch.eye(3, dtype=torch.float64).view(1, 1, 3, 3)}
+    v = float(pr.volume_consistency_loss(blob, pc, ps, prot, mask, per_primitive=2000))
+    assert v > 0.01

@@ -40,8 +40,11 @@ def bench_network(
     warmup: int = 3,
     num_points: int | None = None,
     verbose: bool = True,
+    threads: int | None = None,
 ) -> dict:
     """Median / mean ms per frame (one batched ``predict`` of ``count`` frustums).
+
+    ``threads`` is an alias of ``num_threads`` (used when not None).
 
     Returns ``{"device", "num_threads", "num_points", "results": {count: {"median_ms",
     "mean_ms", "fps"}}}`` and prints one line per count.
@@ -50,6 +53,8 @@ def bench_network(
 
     from .predictor import FrustumPredictor
 
+    if threads is not None:
+        num_threads = threads
     if num_threads is not None:
         torch.set_num_threads(int(num_threads))
     with warnings.catch_warnings():

@@ -66,8 +66,13 @@ class ModelConfig:
     cls_dropout: float = 0.2
     mean_sizes: list[list[float]] = field(default_factory=_default_mean_sizes)
     prune_volume_frac: float = 0.002
-    # primitive size = (min_frac + (1 - min_frac) * sigmoid(a)) * box size
+    # primitive mapping, see shape_detector.model.primitives.primitive_params
     primitive_min_size_frac: float = 0.01
+    primitive_param: str = "exp_linear"
+
+    def primitive_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of :func:`~shape_detector.model.primitives.primitive_params`."""
+        return {"min_frac": float(self.primitive_min_size_frac), "mode": self.primitive_param}
 
     @property
     def num_cls_outputs(self) -> int:
@@ -98,6 +103,8 @@ class ModelConfig:
                 v = tuple(int(x) for x in v)
             kw[k] = v
         cfg = cls(**kw)
+        if cfg.primitive_param not in ("exp_linear", "sigmoid_tanh"):
+            raise ValueError(f"unknown primitive_param {cfg.primitive_param!r}")
         if cfg.shape_branch not in ("canonical", "shared"):
             raise ValueError(f"shape_branch must be 'canonical' or 'shared', got {cfg.shape_branch!r}")
         if len(cfg.mean_sizes) != cfg.num_size_clusters:

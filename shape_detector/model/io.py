@@ -60,7 +60,9 @@ def save_weights(
 
 def model_from_state(blob: dict[str, Any], device: str | torch.device = "cpu") -> FrustumShapeNet:
     """Build the network described by a weights/checkpoint dict and load its state."""
-    cfg = ModelConfig.from_dict(blob["model_config"])
+    mc = dict(blob["model_config"])
+    mc.setdefault("primitive_param", "sigmoid_tanh")  # weights saved before the field existed
+    cfg = ModelConfig.from_dict(mc)
     model = FrustumShapeNet(cfg)
     sd = {k: (v.float() if v.is_floating_point() else v) for k, v in blob["state_dict"].items()}
     model.load_state_dict(sd)

@@ -11,8 +11,10 @@ box errors). Task flags select the groups:
 * ``shape``: coverage (sum of the ``l`` smallest squared distances of GT surface samples to
   the primitives) and consistency (area-weighted squared distance of reparametrised
   primitive-surface samples to the union of GT parts) -- positives with shape GT only;
-  plus the auxiliary supervised matched-part loss (weight ``part``, 0 = thesis-only
-  losses, see :func:`shape_detector.model.primitives.matched_part_loss`);
+  plus two auxiliary terms (weight 0 = thesis-only losses): the supervised matched-part
+  loss (``part``, :func:`shape_detector.model.primitives.matched_part_loss`) and the
+  volumetric consistency (``volume``, points sampled inside the primitives,
+  :func:`shape_detector.model.primitives.volume_consistency_loss`);
 * ``cls``: cross-entropy of the classification head (classes + background), all frustums.
 
 ``batch`` keys (torch tensors, B = batch): ``seg`` (B,N) long, ``cls_label`` (B,) long
@@ -32,7 +34,7 @@ import torch
 import torch.nn.functional as F
 
 from .box_coder import box_corners_torch, decode_heading, decode_size, encode_heading, encode_size, gather_bin
-from .primitives import consistency_loss, coverage_loss, matched_part_loss, primitive_params
+from .primitives import consistency_loss, coverage_loss, matched_part_loss, primitive_params, volume_consistency_loss
 
 
 @dataclass
@@ -48,6 +50,7 @@ class LossWeights:
     coverage: float = 10.0
     consistency: float = 30.0
     part: float = 10.0
+    volume: float = 30.0
     cls: float = 1.0
 
     @classmethod
@@ -98,6 +101,7 @@ def compute_losses(
     l_nearest: int = 1,
     consistency_per_face: int = 25,
     min_size_frac: float = 0.01,
+    primitive_mode: str = "exp_linear",
 ) -> dict[str, torch.Tensor]:
     """Weighted loss terms, their sum under ``"total"``, and a few detached accuracies."""
     tasks = parse_tasks(tasks)
@@ -155,7 +159,7 @@ def compute_losses(
             idx = sh.nonzero().squeeze(1)
             raw = out["shape_raw"][idx]
             gsize = batch["size"][idx]
-            prims = primitive_params(raw, gsize, min_size_frac)
+            prims = primitive_params(raw, gsize, min_size_frac, primitive_mode)
             scale = gsize.norm(dim=1)
             cov = coverage_loss(batch["surface"][idx], prims, l_nearest, scale)
             con = consistency_loss(
@@ -175,6 +179,12 @@ def compute_losses(
                     batch["parts_mask"][idx].bool(), scale=scale,
                 )
                 losses["part"] = w.part * part.mean()
+            if w.volume > 0:
+                vol = volume_consistency_loss(
+                    prims, batch["parts_center"][idx], batch["parts_size"][idx], batch["parts_rotation"][idx],
+                    batch["parts_mask"][idx].bool(), scale=scale,
+                )
+                losses["volume"] = w.volume * vol.mean()
 
     if "cls" in tasks:
         cl = batch["cls_label"].long()

@@ -77,10 +77,15 @@ class FrustumShapeNet(nn.Module):
         with torch.no_grad():
             out.weight.mul_(0.1)
             b = torch.zeros(M, 10)
-            b[:, 0:3] = math.log(0.35 / 0.65)  # sigmoid -> 0.35 of the box size
-            b[:, 3] = 1.0  # quaternion w
             g = torch.Generator().manual_seed(0)
-            b[:, 7:10] = (torch.rand(M, 3, generator=g) - 0.5) * 1.6
+            spread = (torch.rand(M, 3, generator=g) - 0.5) * 1.6
+            if self.config.primitive_param == "exp_linear":
+                b[:, 0:3] = math.log(0.35)  # 0.35 of the box size
+                b[:, 7:10] = spread * 0.8
+            else:
+                b[:, 0:3] = math.log(0.35 / 0.65)  # sigmoid -> 0.35 of the box size
+                b[:, 7:10] = spread
+            b[:, 3] = 1.0  # quaternion w
             out.bias.copy_(b.reshape(-1))
 
     # ------------------------------------------------------------------ pieces
@@ -193,6 +198,26 @@ class FrustumShapeNet(nn.Module):
         }
         out.update(heads)
         return out
+
+    @torch.no_grad()
+    def fuse_batchnorm(self) -> "FrustumShapeNet":
+        """Fold every BatchNorm into its linear layer (inference only: call in eval mode,
+        after loading weights; the module can no longer be trained or saved as weights)."""
+        from .pointnet import PointLinear, fuse_linear_bn
+
+        if self.training:
+            raise RuntimeError("fuse_batchnorm() is for eval mode only")
+        for m in self.modules():
+            if isinstance(m, PointLinear):
+                m.fuse_batchnorm()
+        if self.seg_head_bn is not None:
+            bn = self.seg_head_bn
+            scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+            self.seg_head_local.weight.mul_(scale.unsqueeze(1))
+            self.seg_head_global = fuse_linear_bn(self.seg_head_global, bn)
+            self.seg_head_bn = None
+        self._fused = True
+        return self
 
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())

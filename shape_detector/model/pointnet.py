@@ -23,6 +23,14 @@ class PointLinear(nn.Module):
         self.bn = nn.BatchNorm1d(c_out) if batchnorm else None
         self.relu = relu
 
+    @torch.no_grad()
+    def fuse_batchnorm(self) -> None:
+        """Fold the (eval-mode) BatchNorm into the linear layer, for inference only."""
+        if self.bn is None:
+            return
+        self.linear = fuse_linear_bn(self.linear, self.bn)
+        self.bn = None
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         y = self.linear(x)
         if self.bn is not None:
@@ -76,6 +84,17 @@ class FCHead(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.out(self.body(x))
+
+
+@torch.no_grad()
+def fuse_linear_bn(linear: nn.Linear, bn: nn.BatchNorm1d) -> nn.Linear:
+    """A Linear equal to ``bn(linear(x))`` with the BatchNorm's running statistics."""
+    scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+    out = nn.Linear(linear.in_features, linear.out_features, bias=True).to(linear.weight)
+    out.weight.copy_(linear.weight * scale.unsqueeze(1))
+    b = linear.bias if linear.bias is not None else torch.zeros_like(bn.running_mean)
+    out.bias.copy_((b - bn.running_mean) * scale + bn.bias)
+    return out
 
 
 def masked_max(x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:

@@ -99,13 +99,14 @@ class FrustumPredictor:
                 warnings.warn(f"no packaged weights at {p}; using a randomly initialised network", stacklevel=2)
         if weights is None:
             torch.manual_seed(0)
-            self.model = FrustumShapeNet(ModelConfig()).to(self.device).eval()
+            self.model = FrustumShapeNet(ModelConfig()).to(self.device).eval().fuse_batchnorm()
             self.weights_path = None
         else:
             self.load_weights(weights)
 
     def load_weights(self, path: str | Path) -> None:
         self.model, self.meta = load_weights(path, self.device)
+        self.model.fuse_batchnorm()  # inference only: BatchNorm folded into the linear layers
         self.weights_path = Path(path)
 
     @property
@@ -134,7 +135,7 @@ class FrustumPredictor:
         probs = torch.softmax(out["cls_logits"] / T, dim=1)
         seg_prob = torch.softmax(out["seg_logits"], dim=-1)[..., 1]
         cluster, heading, size = out["box_cluster"], out["box_heading"], out["box_size"]
-        prims = primitive_params(out["shape_raw"], size, cfg.primitive_min_size_frac)
+        prims = primitive_params(out["shape_raw"], size, **cfg.primitive_kwargs())
         fg = seg_prob > 0.5
         fg_score = (seg_prob * fg).sum(1) / fg.sum(1).clamp_min(1)
         res = {

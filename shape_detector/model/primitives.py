@@ -8,11 +8,16 @@ centre, x along the box heading, z up, units **metres** (not normalised). Each o
 ``M`` primitives has a size (3,), a rotation (3,3, columns = its axes; from a unit
 quaternion, full 3D) and a translation (3,). The raw head output (10 per primitive:
 ``size(3) | quaternion w x y z (4) | translation(3)``) is mapped relative to the box size
-``s`` (GT box while training, predicted box at inference)::
+``s`` (GT box while training, predicted box at inference); ``ModelConfig.primitive_param``
+selects the mapping (``f = primitive_min_size_frac``)::
 
-    size  = s * (f + (1 - f) * sigmoid(a))     (f = ModelConfig.primitive_min_size_frac)
-    trans = s / 2 * tanh(b)
-    R     = quat_to_rotmat(q / |q|)
+    "exp_linear" (default):  size = s * (f + exp(min(a, log 1.25), soft))   trans = s / 2 * b
+    "sigmoid_tanh" (first version, kept for old weights):
+                             size = s * (f + (1 - f) * sigmoid(a))          trans = s / 2 * tanh(b)
+    R = quat_to_rotmat(q / |q|)
+
+``exp_linear`` avoids the saturating sigmoid / tanh: furniture parts are thin slabs and
+touch the box boundary, exactly where sigmoid / tanh gradients vanish.
 
 Loss distances are divided by the box diagonal (scale-free, matching a metric
 normalised by the object's diameter).
@@ -52,15 +57,28 @@ def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
     )
 
 
-def primitive_params(raw: torch.Tensor, box_size: torch.Tensor, min_frac: float = 0.01) -> dict[str, torch.Tensor]:
+PRIMITIVE_PARAMS = ("exp_linear", "sigmoid_tanh")
+_LOG_MAX_SIZE = float(np.log(1.25))
+
+
+def primitive_params(
+    raw: torch.Tensor, box_size: torch.Tensor, min_frac: float = 0.01, mode: str = "exp_linear"
+) -> dict[str, torch.Tensor]:
     """Cuboids from the raw shape-head output ``raw`` (B, M, 10) and box sizes (B, 3).
 
     Returns ``center`` (B,M,3), ``size`` (B,M,3), ``rotation`` (B,M,3,3), canonical frame.
     """
     s = box_size.unsqueeze(1)
-    size = s * (min_frac + (1 - min_frac) * torch.sigmoid(raw[..., 0:3]))
+    if mode == "exp_linear":
+        a = _LOG_MAX_SIZE - torch.nn.functional.softplus(_LOG_MAX_SIZE - raw[..., 0:3])
+        size = s * (min_frac + torch.exp(a))
+        trans = 0.5 * s * raw[..., 7:10]
+    elif mode == "sigmoid_tanh":
+        size = s * (min_frac + (1 - min_frac) * torch.sigmoid(raw[..., 0:3]))
+        trans = 0.5 * s * torch.tanh(raw[..., 7:10])
+    else:
+        raise ValueError(f"unknown primitive parametrisation {mode!r}")
     rot = quat_to_rotmat(raw[..., 3:7])
-    trans = 0.5 * s * torch.tanh(raw[..., 7:10])
     return {"center": trans, "size": size, "rotation": rot}
 
 
@@ -241,6 +259,34 @@ def consistency_loss(
     if scale is not None:
         d2 = d2 / (scale * scale).view(-1, 1, 1)
     return (d2 * w).sum(-1).mean(-1)
+
+
+def volume_consistency_loss(
+    prims: dict[str, torch.Tensor],
+    part_center: torch.Tensor,
+    part_size: torch.Tensor,
+    part_rotation: torch.Tensor,
+    part_mask: torch.Tensor | None = None,
+    per_primitive: int = 32,
+    scale: torch.Tensor | None = None,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """Per-object volumetric consistency (B,): squared distance to the union of GT parts of
+    reparametrised points sampled uniformly *inside* each primitive, weighted by primitive
+    volume (detached). Penalises primitives filling empty space (e.g. between a table's
+    legs), which surface samples barely see; a volumetric counterpart of the shape IoU."""
+    B, M = prims["size"].shape[:2]
+    u = torch.rand((B, M, per_primitive, 3), generator=generator, device=prims["size"].device,
+                   dtype=prims["size"].dtype) - 0.5
+    pts = torch.einsum("bmij,bmnj->bmni", prims["rotation"], u * prims["size"].unsqueeze(2)) + prims["center"].unsqueeze(2)
+    d2 = union_sqdist(pts.reshape(B, M * per_primitive, 3), part_center, part_size, part_rotation, part_mask)
+    d2 = d2.reshape(B, M, per_primitive).mean(-1)
+    if scale is not None:
+        d2 = d2 / (scale * scale).view(-1, 1)
+    with torch.no_grad():
+        w = prims["size"].prod(-1)
+        w = w / w.sum(1, keepdim=True).clamp_min(1e-12)
+    return (d2 * w).sum(1)
 
 
 @torch.no_grad()

@@ -78,7 +78,7 @@ class TrainConfig:
     shape_iou_max: int = 600
     shape_iou_samples: int = 2048
     log_every: int = 25
-    num_threads: int = 2
+    num_threads: int = 1  # 2 only on an idle machine: oversubscribed OpenMP threads are ~20x slower
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> "TrainConfig":
@@ -312,7 +312,7 @@ def evaluate(
         b = data.batch(idx, cfg, augment=False, one_hot_mode="given")
         out = model(b["points"], b["one_hot"], random_gather=False)
         L = compute_losses(out, b, ms, tasks, LossWeights.from_dict(cfg.loss_weights), 1, cfg.consistency_per_face,
-                           mcfg.primitive_min_size_frac)
+                           mcfg.primitive_min_size_frac, mcfg.primitive_param)
         for k, v in L.items():
             if not k.startswith("stat_"):
                 loss_sums[k] = loss_sums.get(k, 0.0) + float(v)
@@ -332,6 +332,7 @@ def evaluate(
             push(f"heading_{tag}", o["box_heading"])
             push(f"size_{tag}", o["box_size"])
             push(f"center_{tag}", o["center"])
+        push("stage1", out["stage1_center"])
         push("gt_center", b["center"])
         push("gt_size", b["size"])
         push("gt_heading", b["heading"])
@@ -350,7 +351,7 @@ def evaluate(
                     b["parts_rotation"][ii], b["parts_mask"][ii])
             out_s = model(b["points"], b["one_hot"], random_gather=False, shape_box=shape_box_from_gt(b))
             for tag, raw_s, bs_ in (("_gtbox", out_s["shape_raw"][ii], gs), ("", out["shape_raw"][ii], out["box_size"][ii])):
-                prims = primitive_params(raw_s, bs_, mcfg.primitive_min_size_frac)
+                prims = primitive_params(raw_s, bs_, **mcfg.primitive_kwargs())
                 d = bs_.norm(dim=1, keepdim=True)
                 prims = {"center": prims["center"] / d.unsqueeze(1), "size": prims["size"] / d.unsqueeze(1),
                          "rotation": prims["rotation"]}
@@ -379,6 +380,9 @@ def evaluate(
                 dh = np.abs((h - gh + np.pi) % (2 * np.pi) - np.pi)
                 m["heading_err_deg_median"] = float(np.degrees(np.median(dh)))
                 m["heading_acc_30deg"] = float((dh < np.radians(30)).mean())
+                dhs = np.abs((h - gh + np.pi / 2) % np.pi - np.pi / 2)
+                m["heading_acc_30deg_mod180"] = float((dhs < np.radians(30)).mean())
+                m["stage1_err_median"] = float(np.median(np.linalg.norm(cat["stage1"][pos] - gc, axis=1)))
                 m["size_err_rel_mean"] = float(np.mean(np.abs(sz - gsz) / gsz))
     for tag in ("", "_gtbox"):
         if "shape_iou" + tag in cat:
@@ -479,7 +483,7 @@ def plot_curves(history: dict[str, Any], path: str | Path) -> None:
                         0.38, col, 1, cv2.LINE_AA)
 
     steps = history.get("steps", [])
-    keys = ["total", "seg", "center", "corner", "heading_cls", "size_res", "coverage", "consistency", "part", "cls"]
+    keys = ["total", "seg", "center", "corner", "heading_cls", "size_res", "coverage", "consistency", "part", "volume", "cls"]
     series = []
     for k in keys:
         xs = [r["step"] for r in steps if k in r]
@@ -623,7 +627,7 @@ def train(
             sbox = shape_box_from_gt(b, cfg.shape_box_noise, gen) if "shape" in tasks else None
             out = model(b["points"], b["one_hot"], shape_box=sbox)
             L = compute_losses(out, b, model.mean_sizes, tasks, weights, l_near, cfg.consistency_per_face,
-                               mcfg.primitive_min_size_frac)
+                               mcfg.primitive_min_size_frac, mcfg.primitive_param)
             opt.zero_grad(set_to_none=True)
             L["total"].backward()
             if cfg.grad_clip > 0:
