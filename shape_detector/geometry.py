@@ -74,7 +74,7 @@ def wrap_angle(a: float | np.ndarray) -> float | np.ndarray:
 
 
 #: unit-cube corner signs, ordered: bottom face (z=-) counter-clockwise, then top face.
-_CORNER_SIGNS = np.array(
+CORNER_SIGNS = np.array(
     [
         [1, 1, -1],
         [-1, 1, -1],
@@ -97,9 +97,9 @@ BOX_EDGES: tuple[tuple[int, int], ...] = (
 
 
 def box_corners(center: np.ndarray, size: np.ndarray, rotation: np.ndarray) -> np.ndarray:
-    """The 8 corners (8,3) of an oriented box (same frame as ``center``), see ``_CORNER_SIGNS``."""
+    """The 8 corners (8,3) of an oriented box (same frame as ``center``), see ``CORNER_SIGNS``."""
     half = 0.5 * np.asarray(size, dtype=np.float64).reshape(1, 3)
-    local = _CORNER_SIGNS * half
+    local = CORNER_SIGNS * half
     return local @ np.asarray(rotation, dtype=np.float64).T + np.asarray(center).reshape(1, 3)
 
 

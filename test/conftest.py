@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import random
+import sys
 from pathlib import Path
 
 import pytest
@@ -31,3 +32,17 @@ def ros_context():
     rclpy.init(context=ctx)
     yield ctx
     rclpy.shutdown(context=ctx)
+
+
+@pytest.fixture(autouse=True)
+def _one_torch_thread(request):
+    """One torch intra-op thread for tests that use torch: on a shared 2-core machine,
+    oversubscribed OpenMP threads make small ops 20x slower. Restored afterwards."""
+    torch = sys.modules.get("torch")
+    if torch is None:
+        yield
+        return
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)

@@ -15,14 +15,6 @@ from shape_detector.training.train import TensorData, TrainConfig
 from test_model_scene import make_frame
 
 
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """One intra-op thread: on a shared 2-core machine oversubscribed OpenMP threads make
-    small ops 20x slower; restored afterwards."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 SMALL = dict(num_points=256, num_object_points=128, seg_widths=(32, 32, 64, 128), seg_head_widths=(64, 32),

@@ -13,14 +13,6 @@ from shape_detector.geometry import box_corners, rot_z
 from shape_detector.model import box_coder as bc
 
 
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """One intra-op thread: on a shared 2-core machine oversubscribed OpenMP threads make
-    small ops 20x slower; restored afterwards."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 def test_heading_round_trip_torch_and_numpy():

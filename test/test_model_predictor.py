@@ -17,14 +17,6 @@ from shape_detector.model.predictor import FrustumPrediction, FrustumPredictor
 from test_model_scene import make_frame
 
 
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """One intra-op thread: on a shared 2-core machine oversubscribed OpenMP threads make
-    small ops 20x slower; restored afterwards."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 SMALL = dict(num_points=128, num_object_points=64, seg_widths=(16, 16, 32), seg_head_widths=(16,),

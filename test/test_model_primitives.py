@@ -11,14 +11,6 @@ import torch
 from shape_detector.model import primitives as pr
 
 
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """One intra-op thread: on a shared 2-core machine oversubscribed OpenMP threads make
-    small ops 20x slower; restored afterwards."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 def _cub(center, size, rot=None):

@@ -19,20 +19,10 @@ import math
 import numpy as np
 import torch
 
-# same corner order as shape_detector.geometry._CORNER_SIGNS
-_CORNER_SIGNS = torch.tensor(
-    [
-        [1, 1, -1],
-        [-1, 1, -1],
-        [-1, -1, -1],
-        [1, -1, -1],
-        [1, 1, 1],
-        [-1, 1, 1],
-        [-1, -1, 1],
-        [1, -1, 1],
-    ],
-    dtype=torch.float32,
-)
+from ..geometry import CORNER_SIGNS
+
+# same corner order as shape_detector.geometry.box_corners
+_CORNER_SIGNS = torch.from_numpy(CORNER_SIGNS).float()
 
 
 def box_head_channels(nh: int, ns: int) -> int:
