@@ -190,6 +190,20 @@ class ShapeDetector:
         }
         return objects
 
+    def warm_up(self) -> None:
+        """Run the pipeline once on a tiny synthetic frame (floor + a box, 160x120), so the
+        first real frame does not pay torch's and OpenCV's first-call costs."""
+        h, w = 120, 160
+        K = np.array([[130.0, 0.0, 79.5], [0.0, 130.0, 59.5], [0.0, 0.0, 1.0]])
+        v = np.arange(h, dtype=np.float64)[:, None] - K[1, 2]
+        floor = 1.2 * K[1, 1] / np.where(v > 0, v, np.inf)  # floor 1.2 m below a level camera
+        depth = np.where((floor > 0) & (floor < 4.0), floor, 4.0).repeat(w, axis=1).astype(np.float32)
+        depth[50:100, 60:100] = 2.0
+        rgb = np.full((h, w, 3), 128, np.uint8)
+        self.detect(rgb, depth, K, boxes2d=[(60, 50, 100, 100, "chair")])
+        if self.proposal_source != "none":
+            self.detect(rgb, depth, K)
+
     def detect_frame(self, frame: Any, boxes2d: Sequence[Any] | None = None, use_gt_up: bool = False) -> list[Object3D]:
         """:meth:`detect` on a :class:`~shape_detector.types.Frame` (``use_gt_up`` passes ``frame.up``)."""
         return self.detect(frame.rgb, frame.depth, frame.K, boxes2d=boxes2d, up=frame.up if use_gt_up else None)

@@ -222,6 +222,11 @@ class DetectorNode(Node):
             factory = ShapeDetector
         t = time.perf_counter()
         det = factory(**kwargs)
+        if hasattr(det, "warm_up"):  # first-call costs now, not on the first camera frame
+            try:
+                det.warm_up()
+            except Exception as exc:  # a failed warm-up must not stop the node; frames will tell
+                self.get_logger().warning(f"detector warm-up failed: {exc!r}")
         self.get_logger().info(
             f"detector {type(det).__name__} ready in {time.perf_counter() - t:.2f} s "
             f"(weights={kwargs['weights'] or 'default'}, device={kwargs['device']})"

@@ -102,3 +102,9 @@ def test_empty_depth_and_bad_inputs(detector):
         detector.detect(frame.rgb, frame.depth, np.zeros((3, 3)))
     with pytest.raises(ValueError, match="up"):
         detector.detect(frame.rgb, frame.depth, frame.K, up=np.zeros(3))
+
+
+def test_warm_up_runs_the_whole_pipeline(detector):
+    detector.last_timing = {}
+    detector.warm_up()
+    assert detector.last_timing["num_frustums"] >= 1 and detector.last_up is not None
