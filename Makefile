@@ -54,7 +54,7 @@ $(DATA)/test/index.json: | $(STAMP)
 	$(SD) synth dataset --out $(DATA)/test --frames 250 --seed 3 --workers 2 --rgb-format jpg --frames-per-shard 125
 
 weights: $(DATA)/train/index.json $(DATA)/val/index.json
-	$(SD) train --data $(DATA)/train --val-data $(DATA)/val --out runs/main --seed 0 --epochs 7 --max-minutes 60 --device cpu --threads 1
+	$(SD) train --config shape_detector/training/configs/shipped.json --data $(DATA)/train --val-data $(DATA)/val --out runs/main --seed 0 --epochs 7 --max-minutes 60 --device cpu --threads 1
 	cp runs/main/best.pt shape_detector/weights/default.pt
 
 evaluate: $(DATA)/test/index.json

@@ -40,8 +40,8 @@ from .primitives import consistency_loss, coverage_loss, matched_part_loss, prim
 @dataclass
 class LossWeights:
     seg: float = 1.0
-    center: float = 1.0
-    stage1_center: float = 1.0
+    center: float = 5.0  # Frustum PointNets uses 1 (KITTI scale); indoor errors are ~5x smaller
+    stage1_center: float = 5.0
     heading_cls: float = 1.0
     heading_res: float = 20.0
     size_cls: float = 1.0
@@ -49,7 +49,7 @@ class LossWeights:
     corner: float = 10.0
     coverage: float = 10.0
     consistency: float = 30.0
-    part: float = 10.0
+    part: float = 30.0
     volume: float = 30.0
     cls: float = 1.0
 

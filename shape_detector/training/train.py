@@ -49,7 +49,7 @@ class TrainConfig:
     data: dict = field(default_factory=dict)  # FrustumDatasetConfig overrides
     epochs: int = 12
     batch_size: int = 32
-    lr: float = 1e-3
+    lr: float = 2e-3
     lr_schedule: str = "cosine"  # "cosine" | "step"
     lr_min_frac: float = 0.02
     lr_step_epochs: int = 4
