@@ -28,6 +28,8 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import Any, Generic, TypeVar
 
+from msg_conversion.stamps import stamp_to_ns
+
 T = TypeVar("T")
 
 _NS = 1_000_000_000
@@ -39,17 +41,13 @@ def header_stamp_ns(msg: Any) -> int | None:
     Works for rclpy and rosbags messages (``sec``/``nanosec``) and ROS 1 style stamps
     (``secs``/``nsecs``).
     """
-    header = getattr(msg, "header", None)
-    stamp = getattr(header, "stamp", None)
-    if stamp is None:
+    stamp = getattr(getattr(msg, "header", None), "stamp", None)
+    if stamp is None or isinstance(stamp, (bool, int)):
         return None
-    if hasattr(stamp, "sec") and hasattr(stamp, "nanosec"):
-        return int(stamp.sec) * _NS + int(stamp.nanosec)
-    if hasattr(stamp, "secs") and hasattr(stamp, "nsecs"):
-        return int(stamp.secs) * _NS + int(stamp.nsecs)
-    if hasattr(stamp, "nanoseconds"):
-        return int(stamp.nanoseconds)
-    return None
+    try:
+        return stamp_to_ns(stamp)
+    except TypeError:
+        return None
 
 
 class ApproximateTimeSynchronizer:
