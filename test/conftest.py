@@ -46,3 +46,14 @@ def _one_torch_thread(request):
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(n)
+
+
+@pytest.fixture(params=["rclpy", "rosbags"])
+def types(request):
+    """msg_conversion's message classes of each flavour: rclpy's and rosbags' (Jazzy store)."""
+    from msg_conversion.msgtypes import rclpy_types, rosbags_types
+
+    if request.param == "rclpy":
+        pytest.importorskip("sensor_msgs.msg")
+        return rclpy_types()
+    return rosbags_types()

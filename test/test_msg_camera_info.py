@@ -19,12 +19,6 @@ from msg_conversion import (
 K0 = np.array([[525.0, 0.0, 319.5], [0.0, 520.0, 239.5], [0.0, 0.0, 1.0]])
 
 
-@pytest.fixture(params=["rclpy", "rosbags"])
-def types(request):
-    if request.param == "rclpy":
-        pytest.importorskip("sensor_msgs.msg")
-        return rclpy_types()
-    return rosbags_types()
 
 
 def test_round_trip_and_fields(types):

@@ -28,12 +28,6 @@ ENCODINGS = {  # encoding -> (dtype, channels)
 }
 
 
-@pytest.fixture(params=["rclpy", "rosbags"])
-def types(request):
-    if request.param == "rclpy":
-        pytest.importorskip("sensor_msgs.msg")
-        return rclpy_types()
-    return rosbags_types()
 
 
 def _random(enc: str, h: int = 5, w: int = 7, seed: int = 0) -> np.ndarray:
