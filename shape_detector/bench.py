@@ -21,13 +21,14 @@ TARGETS = ("synth", "network", "proposals", "pipeline", "node")
 def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("target", choices=TARGETS + ("all",), help="what to time")
     p.add_argument("--frames", type=int, default=20, help="frames to time (synth, proposals, pipeline)")
-    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's choice)")
+    p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1, as the detector)")
+    p.add_argument("--workers", type=int, default=1, help="threads the network splits a frame's frustums over")
     p.add_argument("--weights", default=None, help="weights for network/pipeline/node (default: packaged)")
     p.add_argument("--bag", default=str(Path(__file__).resolve().parents[1] / "bags" / "sample"))
     p.add_argument("--json", default=None, help="also write the results here")
 
 
-def bench_pipeline(frames: int = 20, weights: str | None = None, threads: int | None = None) -> dict:
+def bench_pipeline(frames: int = 20, weights: str | None = None, threads: int | None = None, workers: int = 1) -> dict:
     """Median / p95 ms per VGA frame of ``ShapeDetector.detect`` with GT boxes and with built-in proposals."""
     import torch
 
@@ -36,7 +37,7 @@ def bench_pipeline(frames: int = 20, weights: str | None = None, threads: int | 
 
     if threads:
         torch.set_num_threads(threads)
-    det = ShapeDetector(weights=weights, score_threshold=0.0)
+    det = ShapeDetector(weights=weights, score_threshold=0.0, num_threads=threads, workers=workers)
     scenes = [generate_frame(10_000 + i) for i in range(frames)]
     out: dict[str, dict] = {}
     for mode in ("gt_boxes", "builtin"):
@@ -76,13 +77,13 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
     if target == "network":
         from .model.bench import bench_network
 
-        return bench_network(weights=args.weights, threads=args.threads)
+        return bench_network(weights=args.weights, threads=args.threads, workers=args.workers)
     if target == "proposals":
         from .proposals.bench import bench_proposals
 
         return bench_proposals(frames=args.frames)
     if target == "pipeline":
-        return bench_pipeline(frames=args.frames, weights=args.weights, threads=args.threads)
+        return bench_pipeline(frames=args.frames, weights=args.weights, threads=args.threads, workers=args.workers)
     if target == "node":
         from .node_bench import bench_node
 

@@ -51,6 +51,9 @@ class ShapeDetector:
     the network (default 1: a frame's batch is small, and on a loaded 2-core machine torch's
     intra-op threads wait on each other; measured 46 ms for 10 frustums with 1 thread against
     496 ms with 2 here; None keeps torch's setting). The setting is process-wide (torch).
+    ``workers``: split a frame's frustums over this many threads, each running single-threaded
+    ops (data parallelism without OpenMP barriers; worth 2 on an otherwise idle multi-core
+    CPU, see README "Speed").
     """
 
     def __init__(
@@ -62,6 +65,7 @@ class ShapeDetector:
         proposals: str = "geometric",
         nms_iou: float = 0.25,
         num_threads: int | None = 1,
+        workers: int = 1,
     ) -> None:
         from .model.predictor import FrustumPredictor
 
@@ -72,7 +76,7 @@ class ShapeDetector:
                 "or pass weights=...)"
             )
         self.weights = path
-        self.predictor = FrustumPredictor(path, device=device, num_threads=num_threads)
+        self.predictor = FrustumPredictor(path, device=device, num_threads=num_threads, workers=workers)
         self.num_points = int(self.predictor.config.num_points)
         self.score_threshold = float(score_threshold)
         self.max_objects = int(max_objects)

@@ -26,11 +26,18 @@ def nms_3d(objects: list[Object3D], iou_threshold: float = 0.25, containment_thr
     different classes are duplicates of one object from different proposals (a part of
     an object proposed alone, or an object merged with its neighbour).
     """
-    kept: list[Object3D] = []
-    for obj in sorted(objects, key=lambda o: -o.score):
+    ordered = sorted(objects, key=lambda o: -o.score)
+    if not ordered:
+        return []
+    # bounding spheres: boxes whose spheres do not touch cannot overlap (skips the exact IoU)
+    centers = np.array([np.asarray(o.center, np.float64).reshape(3) for o in ordered])
+    radii = np.array([0.5 * float(np.linalg.norm(o.size)) for o in ordered])
+    near = np.linalg.norm(centers[:, None] - centers[None], axis=-1) < radii[:, None] + radii[None]
+    kept: list[int] = []
+    for i, obj in enumerate(ordered):
         if all(
             iou <= iou_threshold and contained <= containment_threshold
-            for iou, contained in (overlap_ratios(obj, k) for k in kept)
+            for iou, contained in (overlap_ratios(obj, ordered[k]) for k in kept if near[i, k])
         ):
-            kept.append(obj)
-    return kept
+            kept.append(i)
+    return [ordered[i] for i in kept]

@@ -47,6 +47,8 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                         {"floating_point_range": [FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)]}),
     "max_objects": (20, "maximum objects per frame", False,
                     {"integer_range": [IntegerRange(from_value=1, to_value=1000, step=1)]}),
+    "workers": (1, "threads the network splits a frame's frustums over (2 on an otherwise idle 2-core CPU)", True,
+                {"integer_range": [IntegerRange(from_value=1, to_value=64, step=1)]}),
     "proposal_source": ("geometric", "2D proposals: 'geometric' (built in) or 'external' (the detections2d "
                         "topic, vision_msgs/Detection2DArray, synchronised with the image)", True, {}),
     "sync_slop": (0.02, "approximate time synchroniser slop between image and depth stamps, seconds", False,
@@ -210,6 +212,7 @@ class DetectorNode(Node):
             device=self.p["device"],
             score_threshold=float(self.p["score_threshold"]),
             max_objects=int(self.p["max_objects"]),
+            workers=int(self.p["workers"]),
             # external 2D boxes come with every frame: no built-in proposer needed
             proposals="none" if self.external else "geometric",
         )

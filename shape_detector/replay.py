@@ -514,6 +514,7 @@ def make_detector(
     max_objects: int = 20,
     proposals: str = "geometric",
     factory: str | None = None,
+    workers: int = 1,
 ) -> Any:
     """The detector for the CLI and the node: ``ShapeDetector`` or ``factory(**same kwargs)``.
 
@@ -522,7 +523,8 @@ def make_detector(
     if proposals not in ("geometric", "external", "none"):
         raise ValueError(f"proposals must be 'geometric' or 'external', got {proposals!r}")
     kwargs = dict(weights=weights or None, device=device, score_threshold=score_threshold,
-                  max_objects=max_objects, proposals="none" if proposals == "external" else proposals)
+                  max_objects=max_objects, proposals="none" if proposals == "external" else proposals,
+                  workers=workers)
     if factory:
         return load_factory(factory)(**kwargs)
     from .detector import ShapeDetector
@@ -550,6 +552,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     d.add_argument("--device", default="cpu")
     d.add_argument("--score-threshold", type=float, default=0.3)
     d.add_argument("--max-objects", type=int, default=20)
+    d.add_argument("--workers", type=int, default=1, help="threads the network splits a frame's frustums over")
     d.add_argument("--proposals", choices=("geometric", "external"), default=None,
                    help="2D proposal source (default: external when --detections2d is given)")
     d.add_argument("--detector", metavar="MODULE:CALLABLE", help="use another detector factory (tests, plugins)")
@@ -631,7 +634,7 @@ def main(args: argparse.Namespace) -> int:
         return 2
     try:
         detector = make_detector(args.weights, args.device, args.score_threshold, args.max_objects, proposals,
-                                 args.detector)
+                                 args.detector, workers=args.workers)
     except Exception as e:  # noqa: BLE001
         print(f"shape-detector replay: cannot create the detector: {type(e).__name__}: {e}", file=sys.stderr)
         return 1

@@ -161,3 +161,26 @@ def test_fused_batchnorm_matches_eval_network():
     assert not any(isinstance(m, torch.nn.BatchNorm1d) for m in fused.modules())
     for k in ("seg_logits", "center", "heading_scores", "size_res_norm", "shape_raw", "cls_logits"):
         assert torch.allclose(ref[k], got[k], atol=1e-4, rtol=1e-4), k
+
+
+def test_worker_threads_split_the_batch_without_changing_results(weights):
+    """workers=2 runs chunks of the batch on two threads: same predictions, same order."""
+    frames = [make_frame(s, 3) for s in (5, 6, 7)]
+    serial = FrustumPredictor(weights, device="cpu", num_threads=1)
+    split = FrustumPredictor(weights, device="cpu", num_threads=1, workers=2, min_chunk=2)
+    frs, ids = [], []
+    for f in frames:
+        for o in f.objects:
+            frs.append(extract_frustum(f.rgb, f.depth, f.K, o.box2d, serial.num_points, up=f.up,
+                                       rng=np.random.default_rng(len(frs))))
+            ids.append(None if len(frs) % 2 else class_id(o.class_name))
+    assert len(frs) >= 4
+    a, b = serial.predict(frs, ids), split.predict(frs, ids)
+    assert split._pool is not None  # the batch really was split
+    for p, q in zip(a, b):
+        assert p.class_name == q.class_name and abs(p.score - q.score) < 1e-5
+        np.testing.assert_allclose(p.center, q.center, atol=1e-5)
+        np.testing.assert_allclose(p.size, q.size, atol=1e-5)
+        np.testing.assert_allclose(p.seg_prob, q.seg_prob, atol=1e-5)
+    # a batch smaller than two chunks stays on the calling thread
+    assert len(split.predict(frs[:3], ids[:3])) == 3

@@ -148,3 +148,50 @@ def test_cli_trains_from_npz_with_task_flags(ds, tmp_path):
     assert "shape_iou" in m and "box_iou" not in m and vm["tasks"] == ["shape"]
     _, meta = load_weights(tmp_path / "run" / "weights.pt")
     assert meta["tasks"] == ["shape"]
+
+
+def test_proposal_frustums_are_labelled_by_2d_overlap():
+    """Proposal frustums: positives overlap their object's box by >= 0.5 (2D IoU) and carry its
+    GT; hard negatives overlap no labelled box by 0.25 or more; GT-box frustums can be left out."""
+    from shape_detector.synth.generate import SynthConfig, generate_frame
+
+    frames = [generate_frame(s, SynthConfig(width=320, height=240)) for s in (3, 4, 5)]
+    ds = fds.build_frustum_dataset(frames, num_points=128, augment_copies=1, negatives_per_frame=0,
+                                   gt_frustums=False, proposal_positives=3, proposal_negatives=3)
+    s = fds.summary(ds)
+    assert s["positives"] >= 3 and s["negatives"] >= 1 and set(s["neg_kinds"]) == {fds.NEG_PROPOSAL}
+    assert s["positives"] <= 9 and s["negatives"] <= 9
+    for i in range(fds.num_frustums(ds)):
+        fr = frames[int(ds["frame_index"][i])]
+        box = ds["box2d"][i]
+        ious = [fds.box_iou_2d(box, o.box2d) for o in fr.objects]
+        if ds["is_negative"][i]:
+            assert max(ious, default=0.0) < 0.25 and ds["seg"][i].sum() == 0
+        else:
+            obj = fr.objects[int(ds["object_index"][i])]
+            assert fds.box_iou_2d(box, obj.box2d) >= 0.5 and ds["seg"][i].sum() > 0
+            assert np.allclose(ds["size"][i], obj.size, atol=1e-5)
+    # the GT-box frustums of the same frames come on top when gt_frustums is on
+    both = fds.build_frustum_dataset(frames, num_points=128, augment_copies=1, negatives_per_frame=0,
+                                     proposal_positives=3, proposal_negatives=3)
+    gt_only = fds.build_frustum_dataset(frames, num_points=128, augment_copies=1, negatives_per_frame=0)
+    assert fds.num_frustums(both) == fds.num_frustums(ds) + fds.num_frustums(gt_only)
+
+
+def test_init_weights_fine_tunes_from_a_trained_model(ds, tmp_path):
+    tr, va = fds.split_by_frame(ds, 0.34, seed=0)
+    train(_cfg(epochs=1), tr, va, tmp_path / "a", seed=3, print_fn=lambda s: None)
+    logs = []
+    # zero epochs of fine-tuning would be a no-op; one epoch at lr 0 must keep the weights
+    train(_cfg(epochs=1, lr=0.0), tr, va, tmp_path / "b", seed=4, print_fn=logs.append,
+          init_weights=tmp_path / "a" / "weights.pt")
+    assert any("initialised from" in s for s in logs)
+    a, _ = load_weights(tmp_path / "a" / "weights.pt")
+    b, _ = load_weights(tmp_path / "b" / "weights.pt")
+    for (k, v), w in zip(a.state_dict().items(), b.state_dict().values()):
+        if "running" in k or "num_batches" in k or "temperature" in k:
+            continue  # BN statistics keep updating in train mode; the temperature is re-fitted
+        assert torch.allclose(v.float(), w.float()), k
+    with pytest.raises(ValueError, match="model config"):
+        train(_cfg(epochs=1, model=dict(SMALL, cls_fc=[8])), tr, va, tmp_path / "c", seed=4,
+              print_fn=lambda s: None, init_weights=tmp_path / "a" / "weights.pt")

@@ -35,14 +35,17 @@ def bench_network(
     counts: Sequence[int] = (1, 5, 10),
     weights: str | Path | None = None,
     device: str = "cpu",
-    num_threads: int | None = 2,
+    num_threads: int | None = 1,
     repeats: int = 20,
     warmup: int = 3,
     num_points: int | None = None,
     verbose: bool = True,
     threads: int | None = None,
+    workers: int = 1,
 ) -> dict:
     """Median / mean ms per frame (one batched ``predict`` of ``count`` frustums).
+
+    ``workers``: threads the batch is split over (:class:`FrustumPredictor`).
 
     ``threads`` is an alias of ``num_threads`` (used when not None).
 
@@ -61,7 +64,7 @@ def bench_network(
         torch.set_num_threads(int(num_threads))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        pred = FrustumPredictor(weights, device=device, num_threads=num_threads)
+        pred = FrustumPredictor(weights, device=device, num_threads=num_threads, workers=workers)
     n_pts = int(num_points or pred.num_points)
     rng = np.random.default_rng(0)
     results = {}
@@ -87,11 +90,12 @@ def bench_network(
             print(
                 f"network: {c:3d} objects/frame  {med:7.2f} ms/frame (median of {repeats})  "
                 f"{1000.0 / med:6.1f} frames/s  cpu {results[int(c)]['cpu_ms']:.1f} ms  "
-                f"[{pred.device}, {torch.get_num_threads()} threads, {n_pts} pts]"
+                f"[{pred.device}, {torch.get_num_threads()} threads, {pred.workers} workers, {n_pts} pts]"
             )
     return {
         "device": str(pred.device),
         "num_threads": torch.get_num_threads(),
+        "workers": pred.workers,
         "num_points": n_pts,
         "results": results,
     }

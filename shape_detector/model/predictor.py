@@ -79,6 +79,10 @@ class FrustumPredictor:
     ``shape_detector/weights/default.pt`` (falls back to a randomly initialised network
     with a warning when that file is missing -- outputs are then meaningless).
     ``device``: ``"cpu"``, ``"cuda"`` or ``"auto"``; ``num_threads`` sets torch's CPU threads.
+    ``workers`` > 1 (CPU): a batch of at least ``2 * min_chunk`` frustums is split into
+    that many chunks run on as many Python threads, each op single-threaded -- data
+    parallelism without OpenMP's barrier waits (which make 2 intra-op threads slower than
+    1 on a loaded 2-core machine).
     """
 
     def __init__(
@@ -86,10 +90,15 @@ class FrustumPredictor:
         weights: str | Path | None = None,
         device: str | torch.device = "cpu",
         num_threads: int | None = None,
+        workers: int = 1,
+        min_chunk: int = 3,
     ) -> None:
         if num_threads is not None:
             torch.set_num_threads(int(num_threads))
         self.device = resolve_device(device)
+        self.workers = max(1, int(workers)) if self.device.type == "cpu" else 1
+        self.min_chunk = max(1, int(min_chunk))
+        self._pool = None
         self.meta: dict = {}
         if weights is None:
             p = default_weights_path()
@@ -173,10 +182,25 @@ class FrustumPredictor:
                 c = class_ids[i]
                 if c is not None:
                     oh[j, int(c)] = 1.0
-            arr = self.forward_arrays(pts, oh)
+            arr = self._forward_parallel(pts, oh)
             for j, i in enumerate(idx):
                 results[i] = self._decode_one(frustums[i], class_ids[i], arr, j)
         return results  # type: ignore[return-value]
+
+    def _forward_parallel(self, pts: np.ndarray, oh: np.ndarray) -> dict[str, np.ndarray]:
+        """:meth:`forward_arrays`, split over ``self.workers`` threads for large batches."""
+        n = pts.shape[0]
+        k = min(self.workers, n // self.min_chunk)
+        if k <= 1:
+            return self.forward_arrays(pts, oh)
+        if self._pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="frustum-net")
+        bounds = np.linspace(0, n, k + 1).round().astype(int)
+        futs = [self._pool.submit(self.forward_arrays, pts[a:b], oh[a:b]) for a, b in zip(bounds[:-1], bounds[1:])]
+        parts = [f.result() for f in futs]
+        return {key: np.concatenate([p[key] for p in parts], 0) for key in parts[0]}
 
     def _decode_one(self, fr: Frustum, cid: int | None, arr: dict[str, np.ndarray], j: int) -> FrustumPrediction:
         cfg = self.config

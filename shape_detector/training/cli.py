@@ -31,12 +31,15 @@ DEFAULT_CONFIG = Path(__file__).resolve().parent / "configs" / "default.json"
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", type=Path, default=None, help=f"training config JSON (default {DEFAULT_CONFIG.name})")
-    p.add_argument("--data", type=Path, required=True, help="shard directory of generated frames, or a frustum .npz")
+    p.add_argument("--data", type=Path, required=True, nargs="+",
+                   help="shard directories of generated frames and/or frustum .npz files (concatenated)")
     p.add_argument("--val-data", type=Path, default=None, help="held-out shard directory or frustum .npz")
     p.add_argument("--out", type=Path, required=True, help="run directory")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--epochs", type=int, default=None, help="override the config's epochs")
     p.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoint.pt")
+    p.add_argument("--init", type=Path, default=None, metavar="WEIGHTS",
+                   help="start from these weights (.pt; same model config) instead of a random init: fine-tuning")
     p.add_argument("--tasks", default=None, help="comma list of box,shape,cls (default: config)")
     p.add_argument("--device", default="auto", help="auto | cpu | cuda[:i]")
     p.add_argument("--max-minutes", type=float, default=None, help="training time budget (epochs are planned to fit)")
@@ -132,7 +135,8 @@ def main(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(cfg.to_dict(), indent=1))
-    train_ds = get_dataset(args.data, cfg, out, "train", args.max_frames, args.seed)
+    parts = [get_dataset(d, cfg, out, "train", args.max_frames, args.seed) for d in args.data]
+    train_ds = parts[0] if len(parts) == 1 else fds.concat(parts)
     if args.val_data is not None:
         val_ds = get_dataset(args.val_data, cfg, out, "val", args.max_val_frames, args.seed)
     else:
@@ -140,8 +144,8 @@ def main(args: argparse.Namespace) -> int:
     print(f"train: {fds.summary(train_ds)}\nval:   {fds.summary(val_ds)}", flush=True)
     final = train(
         cfg, train_ds, val_ds, out, seed=args.seed, device=device, resume=args.resume,
-        max_minutes=args.max_minutes, print_fn=lambda s: print(s, flush=True),
-        extra_meta={"data": str(args.data), "val_data": str(args.val_data) if args.val_data else None},
+        max_minutes=args.max_minutes, print_fn=lambda s: print(s, flush=True), init_weights=args.init,
+        extra_meta={"data": [str(d) for d in args.data], "init": str(args.init) if args.init else None, "val_data": str(args.val_data) if args.val_data else None},
     )
     best = final.get("best.pt", {}).get("metrics", {})
     if best:

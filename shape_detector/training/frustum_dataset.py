@@ -10,6 +10,16 @@ negative frustums, cycling through: unlabelled clutter boxes, random background 
 (a sub-box of an object box with IoU < ``neg_max_iou``); negatives are labelled all
 background and class ``num_classes`` (background).
 
+Proposal frustums (``proposal_positives`` / ``proposal_negatives`` > 0): the built-in
+geometric proposer (gravity estimated, as at inference) runs on the frame and its top
+``proposal_top`` boxes become training frustums, so the network learns the box
+distribution it meets without GT boxes. A proposal whose 2D IoU with an eligible object's
+visible box is >= ``proposal_pos_iou`` is a positive of that object; one below
+``proposal_neg_iou`` with every labelled object box is a hard negative (kind 4:
+clutter, wall remnants, pieces of objects, merged neighbours); the rest are skipped.
+At most that many of each per frame, drawn at random. ``gt_frustums=False`` builds the
+proposal frustums only (to add to an existing GT-box dataset).
+
 Arrays (K frustums, N points, P max parts, S surface samples)::
 
     points (K,N,6) float16     xyz in the frustum frame F, rgb in [0,1]
@@ -42,7 +52,7 @@ from ..geometry import rotation_to_heading, upright_rotation, wrap_angle
 from ..model.primitives import sample_parts_surface_np
 from ..types import Frame
 
-NEG_POSITIVE, NEG_CLUTTER, NEG_BACKGROUND, NEG_PARTIAL = 0, 1, 2, 3
+NEG_POSITIVE, NEG_CLUTTER, NEG_BACKGROUND, NEG_PARTIAL, NEG_PROPOSAL = 0, 1, 2, 3, 4
 
 
 @dataclass
@@ -59,6 +69,12 @@ class FrustumDatasetConfig:
     neg_max_iou: float = 0.3
     neg_min_side: int = 24
     max_depth: float = 10.0
+    gt_frustums: bool = True
+    proposal_positives: int = 0
+    proposal_negatives: int = 0
+    proposal_top: int = 20
+    proposal_pos_iou: float = 0.5
+    proposal_neg_iou: float = 0.25
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> "FrustumDatasetConfig":
@@ -196,6 +212,8 @@ def _frame_frustums(frame: Frame, fi: int, cfg: FrustumDatasetConfig, rng: np.ra
             max_depth=cfg.max_depth, points_cam=pts_cam,
         )
 
+    eligible: dict[int, tuple] = {}  # object index -> (fg_valid, class id, heading_u)
+    parts: dict[int, tuple] = {}  # object index -> canonical parts, drawn on first use
     for oi, obj in enumerate(frame.objects):
         if obj.class_name not in CLASS_TO_ID or mask is None:
             continue
@@ -207,26 +225,53 @@ def _frame_frustums(frame: Frame, fi: int, cfg: FrustumDatasetConfig, rng: np.ra
         fg_valid = int(np.count_nonzero((mask[y1:y2, x1:x2] == obj.instance_id) & depth_ok[y1:y2, x1:x2]))
         if fg_valid < cfg.min_points:
             continue
-        cid = CLASS_TO_ID[obj.class_name]
-        heading_u = rotation_to_heading(obj.rotation, frame.up)
-        pc, ps, pr, npart, surf = _object_parts_canonical(obj, cfg.max_parts, cfg.surface_samples, rng)
+        eligible[oi] = (fg_valid, CLASS_TO_ID[obj.class_name], rotation_to_heading(obj.rotation, frame.up))
+
+    def add_positive(oi: int, box) -> None:
+        obj = frame.objects[oi]
+        fg_valid, cid, heading_u = eligible[oi]
+        if oi not in parts:
+            parts[oi] = _object_parts_canonical(obj, cfg.max_parts, cfg.surface_samples, rng)
+        pc, ps, pr, npart, surf = parts[oi]
+        fr = extract(box)
+        if fr.valid == 0:
+            return
+        seg = (mask.reshape(-1)[fr.pixel_index] == obj.instance_id).astype(np.uint8)
+        if int(seg.sum()) < min(cfg.min_points, cfg.num_points // 16):
+            return
+        R_fc = fr.R_cf.T
+        b.add(
+            points=fr.points, seg=seg, class_id=cid, is_negative=False, neg_kind=NEG_POSITIVE,
+            center=R_fc @ np.asarray(obj.center, np.float64), size=np.asarray(obj.size),
+            heading=float(wrap_angle(heading_u + fr.phi)), has_shape=npart > 0,
+            parts_center=pc, parts_size=ps, parts_rotation=pr, parts_count=npart, surface=surf,
+            phi=fr.phi, R_cu=R_cu, box2d=np.asarray(box, np.float32), valid=fr.valid,
+            frame_index=fi, object_index=oi, fg_valid=fg_valid,
+        )
+
+    def add_negative(box, kind: int) -> None:
+        fr = extract(box)
+        if fr.valid < cfg.min_points:
+            return
+        b.add(
+            points=fr.points, seg=np.zeros(cfg.num_points, np.uint8), class_id=-1, is_negative=True,
+            neg_kind=kind, center=np.zeros(3), size=np.ones(3), heading=0.0, has_shape=False,
+            parts_center=np.zeros((cfg.max_parts, 3)), parts_size=np.zeros((cfg.max_parts, 3)),
+            parts_rotation=eye, parts_count=0, surface=np.zeros((cfg.surface_samples, 3)),
+            phi=fr.phi, R_cu=R_cu, box2d=np.asarray(box, np.float32), valid=fr.valid,
+            frame_index=fi, object_index=-1, fg_valid=0,
+        )
+
+    if cfg.proposal_positives > 0 or cfg.proposal_negatives > 0:
+        _proposal_frustums(frame, cfg, rng, eligible, gt_boxes, add_positive, add_negative)
+    if not cfg.gt_frustums:
+        return
+
+    for oi in eligible:
+        obj = frame.objects[oi]
         for copy in range(max(1, cfg.augment_copies)):
             box = tuple(obj.box2d) if copy == 0 else jitter_box(obj.box2d, rng, cfg.box_jitter, W, H)
-            fr = extract(box)
-            if fr.valid == 0:
-                continue
-            seg = (mask.reshape(-1)[fr.pixel_index] == obj.instance_id).astype(np.uint8)
-            if int(seg.sum()) < min(cfg.min_points, cfg.num_points // 16):
-                continue
-            R_fc = fr.R_cf.T
-            b.add(
-                points=fr.points, seg=seg, class_id=cid, is_negative=False, neg_kind=NEG_POSITIVE,
-                center=R_fc @ np.asarray(obj.center, np.float64), size=np.asarray(obj.size),
-                heading=float(wrap_angle(heading_u + fr.phi)), has_shape=npart > 0,
-                parts_center=pc, parts_size=ps, parts_rotation=pr, parts_count=npart, surface=surf,
-                phi=fr.phi, R_cu=R_cu, box2d=np.asarray(box, np.float32), valid=fr.valid,
-                frame_index=fi, object_index=oi, fg_valid=fg_valid,
-            )
+            add_positive(oi, box)
 
     # negatives
     clutter = list(frame.clutter_boxes)
@@ -247,17 +292,34 @@ def _frame_frustums(frame: Frame, fi: int, cfg: FrustumDatasetConfig, rng: np.ra
             kind = NEG_BACKGROUND
         if box is None:
             continue
-        fr = extract(box)
-        if fr.valid < cfg.min_points:
-            continue
-        b.add(
-            points=fr.points, seg=np.zeros(cfg.num_points, np.uint8), class_id=-1, is_negative=True,
-            neg_kind=kind, center=np.zeros(3), size=np.ones(3), heading=0.0, has_shape=False,
-            parts_center=np.zeros((cfg.max_parts, 3)), parts_size=np.zeros((cfg.max_parts, 3)),
-            parts_rotation=eye, parts_count=0, surface=np.zeros((cfg.surface_samples, 3)),
-            phi=fr.phi, R_cu=R_cu, box2d=np.asarray(box, np.float32), valid=fr.valid,
-            frame_index=fi, object_index=-1, fg_valid=0,
-        )
+        add_negative(box, kind)
+
+
+_PROPOSER = None
+
+
+def _proposal_frustums(frame: Frame, cfg: FrustumDatasetConfig, rng: np.random.Generator, eligible, gt_boxes,
+                       add_positive, add_negative) -> None:
+    """Positives / hard negatives from the built-in proposer's boxes (see the module docstring)."""
+    global _PROPOSER
+    if _PROPOSER is None:
+        from ..proposals.geometric import GeometricProposer
+
+        _PROPOSER = GeometricProposer()
+    _, props = _PROPOSER(frame.depth, frame.K, up=None, rgb=frame.rgb)
+    pos, neg = [], []
+    for p in props[: cfg.proposal_top]:
+        ious = [box_iou_2d(p.box2d, g) for g in gt_boxes]
+        best = int(np.argmax(ious)) if ious else -1
+        if best >= 0 and ious[best] >= cfg.proposal_pos_iou:
+            if best in eligible:
+                pos.append((best, p.box2d))
+        elif not ious or ious[best] < cfg.proposal_neg_iou:
+            neg.append(p.box2d)
+    for i in rng.permutation(len(pos))[: cfg.proposal_positives]:
+        add_positive(*pos[int(i)])
+    for i in rng.permutation(len(neg))[: cfg.proposal_negatives]:
+        add_negative(neg[int(i)], NEG_PROPOSAL)
 
 
 def build_frustum_dataset(

@@ -35,7 +35,7 @@ import torch
 from ..evaluation.iou import box3d_iou
 from ..geometry import rot_z
 from ..model.config import ModelConfig
-from ..model.io import load_checkpoint, model_from_state, save_checkpoint, save_weights
+from ..model.io import load_checkpoint, load_weights, model_from_state, save_checkpoint, save_weights
 from ..model.losses import LossWeights, compute_losses, parse_tasks
 from ..model.network import FrustumShapeNet
 from ..model.pointnet import set_bn_momentum
@@ -545,11 +545,14 @@ def train(
     print_fn: Callable[[str], None] = print,
     extra_meta: dict[str, Any] | None = None,
     stop_after_epochs: int | None = None,
+    init_weights: str | Path | None = None,
 ) -> dict[str, Any]:
     """Train (or resume) and return the final validation metrics (see module docstring).
 
     ``stop_after_epochs`` ends this call after that many epochs (counted in total, the LR
     schedule still planned for ``cfg.epochs``); ``resume=True`` continues from there.
+    ``init_weights`` starts from a trained model (its model config must equal ``cfg``'s;
+    ignored when resuming from a checkpoint).
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -562,6 +565,12 @@ def train(
     torch.manual_seed(seed)
     np.random.seed(seed % (2**32))
     model = FrustumShapeNet(mcfg).to(device)
+    if init_weights is not None and not (resume and (Path(out_dir) / "checkpoint.pt").is_file()):
+        init_model, _ = load_weights(init_weights, device)
+        if init_model.config.to_dict() != mcfg.to_dict():
+            raise ValueError(f"--init {init_weights}: its model config differs from the training config's")
+        model.load_state_dict(init_model.state_dict())
+        print_fn(f"initialised from {init_weights}")
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     tdata = TensorData(train_ds, device, mcfg.num_classes)
     vdata = TensorData(val_ds, device, mcfg.num_classes) if val_ds is not None and fds.num_frustums(val_ds) else None
@@ -707,8 +716,6 @@ def train(
             p = out_dir / name
             if not p.is_file():
                 continue
-            from ..model.io import load_weights
-
             m, wmeta = load_weights(p, device)
             vm, raw = evaluate(m, vdata, cfg, tasks, cfg.val_max_frustums, seed=seed)
             cal = calibrate(raw) if "cls" in tasks else {"temperature": 1.0}
