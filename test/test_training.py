@@ -195,3 +195,20 @@ def test_init_weights_fine_tunes_from_a_trained_model(ds, tmp_path):
     with pytest.raises(ValueError, match="model config"):
         train(_cfg(epochs=1, model=dict(SMALL, cls_fc=[8])), tr, va, tmp_path / "c", seed=4,
               print_fn=lambda s: None, init_weights=tmp_path / "a" / "weights.pt")
+
+
+def test_trainable_prefixes_freeze_the_rest(ds, tmp_path):
+    """trainable=[...]: only those modules change; frozen BatchNorm statistics stay put."""
+    tr, va = fds.split_by_frame(ds, 0.34, seed=0)
+    train(_cfg(epochs=1), tr, va, tmp_path / "a", seed=3, print_fn=lambda s: None)
+    logs = []
+    train(_cfg(epochs=1, tasks="shape", trainable=["shape_mlp", "shape_head"], lr=0.01), tr, va, tmp_path / "b",
+          seed=4, print_fn=logs.append, init_weights=tmp_path / "a" / "weights.pt")
+    assert any("frozen" in s for s in logs)
+    a, _ = load_weights(tmp_path / "a" / "weights.pt")
+    b, _ = load_weights(tmp_path / "b" / "weights.pt")
+    sa, sb = a.state_dict(), b.state_dict()
+    changed = {k for k in sa if k != "cls_temperature" and not torch.equal(sa[k], sb[k])}
+    assert changed and all(k.startswith(("shape_mlp", "shape_head")) for k in changed), changed
+    with pytest.raises(ValueError, match="no parameter"):
+        train(_cfg(epochs=1, trainable=["nothing_here"]), tr, va, tmp_path / "c", seed=4, print_fn=lambda s: None)

@@ -78,6 +78,7 @@ class TrainConfig:
     shape_iou_max: int = 600
     shape_iou_samples: int = 2048
     log_every: int = 25
+    trainable: list[str] | None = None  # module-name prefixes to train (None = all); the rest frozen, BN in eval
     num_threads: int = 1  # 2 only on an idle machine: oversubscribed OpenMP threads are ~20x slower
 
     @classmethod
@@ -533,6 +534,20 @@ def _fmt_eta(sec: float) -> str:
     return f"{sec // 3600:d}:{sec % 3600 // 60:02d}:{sec % 60:02d}"
 
 
+def _freeze(model: torch.nn.Module, trainable: list[str] | None) -> list[torch.nn.Module]:
+    """Freeze every parameter outside the ``trainable`` module-name prefixes; returns the
+    frozen leaf modules (to keep in eval mode). None or empty: nothing frozen."""
+    if not trainable:
+        return []
+    prefixes = tuple(trainable)
+    for name, prm in model.named_parameters():
+        prm.requires_grad_(name.startswith(prefixes))
+    if not any(p.requires_grad for p in model.parameters()):
+        raise ValueError(f"trainable={trainable}: no parameter matches")
+    return [m for name, m in model.named_modules() if name and not name.startswith(prefixes)
+            and not any(True for _ in m.children())]
+
+
 def train(
     cfg: TrainConfig,
     train_ds: dict[str, np.ndarray],
@@ -571,7 +586,10 @@ def train(
             raise ValueError(f"--init {init_weights}: its model config differs from the training config's")
         model.load_state_dict(init_model.state_dict())
         print_fn(f"initialised from {init_weights}")
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    frozen = _freeze(model, cfg.trainable)
+    if frozen:
+        print_fn(f"training only {cfg.trainable}: {len(frozen)} modules frozen")
+    opt = torch.optim.Adam([p for p in model.parameters() if p.requires_grad], lr=cfg.lr, weight_decay=cfg.weight_decay)
     tdata = TensorData(train_ds, device, mcfg.num_classes)
     vdata = TensorData(val_ds, device, mcfg.num_classes) if val_ds is not None and fds.num_frustums(val_ds) else None
     bs = int(cfg.batch_size)
@@ -619,6 +637,8 @@ def train(
         if stop_after_epochs is not None and epoch >= stop_after_epochs:
             break
         model.train()
+        for m in frozen:
+            m.eval()  # frozen BatchNorm keeps its statistics
         t_ep = time.time()
         perm = torch.randperm(tdata.n, generator=gen)
         run: dict[str, float] = {}
