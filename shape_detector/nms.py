@@ -17,6 +17,43 @@ def overlap_ratios(a: Object3D, b: Object3D) -> tuple[float, float]:
     return iou, inter / max(min(va, vb), 1e-12)
 
 
+def _prisms(objects: list[Object3D]) -> list[tuple[np.ndarray, float, float, float]] | None:
+    """Per box (footprint (4,2) in the upright frame, z min, z max, volume), all boxes
+    sharing the first one's vertical; None when some box is not yaw-only about it."""
+    from .evaluation.iou import VERTICAL_TOL, _prism, _vertical_axis
+    from .geometry import normalize, upright_rotation
+
+    up = normalize(np.asarray(objects[0].rotation, np.float64)[:, 2])
+    R_cu = upright_rotation(up)
+    out = []
+    for o in objects:
+        k = _vertical_axis(o.rotation, up, VERTICAL_TOL)
+        if k is None:
+            return None
+        foot, z0, z1 = _prism(o.center, o.size, o.rotation, R_cu, k)
+        foot = np.ascontiguousarray(foot, dtype=np.float32)
+        e1, e2 = foot[1] - foot[0], foot[2] - foot[1]
+        if e1[0] * e2[1] - e1[1] * e2[0] < 0:
+            foot = foot[::-1].copy()  # counter-clockwise for OpenCV
+        out.append((foot, z0, z1, float(np.prod(np.asarray(o.size, np.float64)))))
+    return out
+
+
+def _prism_overlap(a, b) -> tuple[float, float]:
+    """(IoU, intersection / smaller volume) of two prisms from :func:`_prisms`; footprints
+    intersected by OpenCV's convex clipping (float32: relative error ~1e-6)."""
+    import cv2
+
+    (fa, za0, za1, va), (fb, zb0, zb1, vb) = a, b
+    dz = min(za1, zb1) - max(za0, zb0)
+    if dz <= 0.0 or va <= 0.0 or vb <= 0.0:
+        return 0.0, 0.0
+    area, _ = cv2.intersectConvexConvex(fa, fb)
+    inter = max(float(area), 0.0) * dz
+    union = va + vb - inter
+    return (inter / union if union > 0 else 0.0), inter / min(va, vb)
+
+
 def nms_3d(objects: list[Object3D], iou_threshold: float = 0.25, containment_threshold: float = 0.7) -> list[Object3D]:
     """Objects sorted by score, dropping any that overlaps a kept one by more than
     ``iou_threshold`` (3D IoU) or lies mostly inside it / around it (intersection over the
@@ -24,20 +61,28 @@ def nms_3d(objects: list[Object3D], iou_threshold: float = 0.25, containment_thr
 
     Class-agnostic: two pieces of furniture do not share space, so overlapping boxes of
     different classes are duplicates of one object from different proposals (a part of
-    an object proposed alone, or an object merged with its neighbour).
+    an object proposed alone, or an object merged with its neighbour). The footprints and
+    height intervals are computed once per box (all boxes of a frame share gravity), and
+    boxes whose bounding spheres do not touch are never intersected.
     """
     ordered = sorted(objects, key=lambda o: -o.score)
     if not ordered:
         return []
-    # bounding spheres: boxes whose spheres do not touch cannot overlap (skips the exact IoU)
     centers = np.array([np.asarray(o.center, np.float64).reshape(3) for o in ordered])
     radii = np.array([0.5 * float(np.linalg.norm(o.size)) for o in ordered])
     near = np.linalg.norm(centers[:, None] - centers[None], axis=-1) < radii[:, None] + radii[None]
+    prisms = _prisms(ordered)
+
+    def overlap(i: int, k: int) -> tuple[float, float]:
+        if prisms is None:
+            return overlap_ratios(ordered[i], ordered[k])
+        return _prism_overlap(prisms[i], prisms[k])
+
     kept: list[int] = []
-    for i, obj in enumerate(ordered):
+    for i in range(len(ordered)):
         if all(
             iou <= iou_threshold and contained <= containment_threshold
-            for iou, contained in (overlap_ratios(obj, ordered[k]) for k in kept if near[i, k])
+            for iou, contained in (overlap(i, k) for k in kept if near[i, k])
         ):
             kept.append(i)
     return [ordered[i] for i in kept]
