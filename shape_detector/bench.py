@@ -22,13 +22,13 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("target", choices=TARGETS + ("all",), help="what to time")
     p.add_argument("--frames", type=int, default=20, help="frames to time (synth, proposals, pipeline)")
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1, as the detector)")
-    p.add_argument("--workers", type=int, default=1, help="threads the network splits a frame's frustums over")
+    p.add_argument("--workers", type=int, default=2, help="threads the network splits a frame's frustums over (default 2, as the detector)")
     p.add_argument("--weights", default=None, help="weights for network/pipeline/node (default: packaged)")
     p.add_argument("--bag", default=str(Path(__file__).resolve().parents[1] / "bags" / "sample"))
     p.add_argument("--json", default=None, help="also write the results here")
 
 
-def bench_pipeline(frames: int = 20, weights: str | None = None, threads: int | None = None, workers: int = 1) -> dict:
+def bench_pipeline(frames: int = 20, weights: str | None = None, threads: int | None = None, workers: int = 2) -> dict:
     """Median / p95 ms per VGA frame of ``ShapeDetector.detect`` with GT boxes and with built-in proposals."""
     import torch
 

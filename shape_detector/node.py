@@ -47,7 +47,7 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                         {"floating_point_range": [FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)]}),
     "max_objects": (20, "maximum objects per frame", False,
                     {"integer_range": [IntegerRange(from_value=1, to_value=1000, step=1)]}),
-    "workers": (1, "threads the network splits a frame's frustums over (2 on an otherwise idle 2-core CPU)", True,
+    "workers": (2, "threads the network splits a frame's frustums over (single-threaded ops each; 1 = serial)", True,
                 {"integer_range": [IntegerRange(from_value=1, to_value=64, step=1)]}),
     "proposal_source": ("geometric", "2D proposals: 'geometric' (built in) or 'external' (the detections2d "
                         "topic, vision_msgs/Detection2DArray, synchronised with the image)", True, {}),

@@ -514,7 +514,7 @@ def make_detector(
     max_objects: int = 20,
     proposals: str = "geometric",
     factory: str | None = None,
-    workers: int = 1,
+    workers: int = 2,
 ) -> Any:
     """The detector for the CLI and the node: ``ShapeDetector`` or ``factory(**same kwargs)``.
 
@@ -552,7 +552,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     d.add_argument("--device", default="cpu")
     d.add_argument("--score-threshold", type=float, default=0.3)
     d.add_argument("--max-objects", type=int, default=20)
-    d.add_argument("--workers", type=int, default=1, help="threads the network splits a frame's frustums over")
+    d.add_argument("--workers", type=int, default=2, help="threads the network splits a frame's frustums over (default 2)")
     d.add_argument("--proposals", choices=("geometric", "external"), default=None,
                    help="2D proposal source (default: external when --detections2d is given)")
     d.add_argument("--detector", metavar="MODULE:CALLABLE", help="use another detector factory (tests, plugins)")
