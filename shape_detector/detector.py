@@ -18,6 +18,7 @@ import numpy as np
 from .classes import CLASS_TO_ID
 from .frustum import backproject, extract_frustum
 from .inputs import normalize_inputs
+from .floor import snap_to_floor
 from .nms import nms_3d
 from .types import Object3D
 
@@ -54,7 +55,9 @@ class ShapeDetector:
     ``workers``: split a frame's frustums over this many threads, each running single-threaded
     ops (data parallelism without OpenMP's barrier waits): 10 frustums took 34 ms with 2
     against 60 ms with 1 on an idle 2-core CPU, and the same (56 vs 52-59 ms) with the
-    other core busy. 1 = serial.
+    other core busy. 1 = serial. ``floor_snap``: boxes whose bottom lies within this many
+    metres of the floor measured in the depth get their bottom put on it (furniture
+    stands on the floor; the top is kept), 0 = off; see :mod:`shape_detector.floor`.
     """
 
     def __init__(
@@ -67,6 +70,7 @@ class ShapeDetector:
         nms_iou: float = 0.25,
         num_threads: int | None = 1,
         workers: int = 2,
+        floor_snap: float = 0.25,
     ) -> None:
         from .model.predictor import FrustumPredictor
 
@@ -89,6 +93,8 @@ class ShapeDetector:
         self.last_timing: dict[str, float] = {}
         self.last_up: np.ndarray | None = None
         self.last_up_confidence: float = 0.0
+        self.last_floor_height: float | None = None
+        self.floor_snap = float(floor_snap)
 
     # -- stages -----------------------------------------------------------------------
     def _get_proposer(self):
@@ -100,22 +106,29 @@ class ShapeDetector:
 
     def _gravity_and_proposals(
         self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, up: np.ndarray | None, need_boxes: bool
-    ) -> tuple[np.ndarray, float, list[tuple[tuple[float, float, float, float], str | None, float]]]:
-        """``up`` (given or estimated), its confidence, and built-in proposals if needed."""
+    ) -> tuple[np.ndarray, float, float | None, list[tuple[tuple[float, float, float, float], str | None, float]]]:
+        """``up`` (given or estimated), its confidence, the camera's height above the floor
+        (None: no floor seen, or not needed) and built-in proposals if needed."""
         if need_boxes:
             if self.proposal_source == "none":
                 raise ValueError("detect() needs boxes2d when the detector was built with proposals='none'")
             gravity, props = self._get_proposer()(depth, K, up=up, rgb=rgb)
             boxes = [(tuple(p.box2d), p.class_name, float(p.score)) for p in props]
             if up is not None:
-                return np.asarray(up, dtype=np.float64), 1.0, boxes
-            return np.asarray(gravity.up, dtype=np.float64), float(gravity.confidence), boxes
-        if up is not None:
-            return np.asarray(up, dtype=np.float64), 1.0, []
-        from .gravity import estimate_up
+                return np.asarray(up, dtype=np.float64), 1.0, gravity.floor_height, boxes
+            return np.asarray(gravity.up, dtype=np.float64), float(gravity.confidence), gravity.floor_height, boxes
+        if up is not None and self.floor_snap <= 0.0:
+            return np.asarray(up, dtype=np.float64), 1.0, None, []
+        from .gravity import GravityConfig, auto_stride, estimate_up, make_grid
 
+        if up is not None:  # measure the floor along the given up
+            from .proposals.geometric import _given_up
+
+            grid = make_grid(depth, K, stride=auto_stride(np.shape(depth)))
+            gravity = _given_up(grid, np.asarray(K, np.float64), np.asarray(up, np.float64), GravityConfig())
+            return np.asarray(up, dtype=np.float64), 1.0, gravity.floor_height, []
         gravity = estimate_up(depth, K)
-        return np.asarray(gravity.up, dtype=np.float64), float(gravity.confidence), []
+        return np.asarray(gravity.up, dtype=np.float64), float(gravity.confidence), gravity.floor_height, []
 
     # -- public -----------------------------------------------------------------------
     def detect(
@@ -143,8 +156,8 @@ class ShapeDetector:
             if not np.all(np.isfinite(up)) or np.linalg.norm(up) < 1e-6:
                 raise ValueError(f"up must be a finite non-zero 3-vector, got {up}")
             up = up / np.linalg.norm(up)
-        up_used, up_conf, built_in = self._gravity_and_proposals(rgb, depth, K, up, boxes2d is None)
-        self.last_up, self.last_up_confidence = up_used, up_conf
+        up_used, up_conf, floor_height, built_in = self._gravity_and_proposals(rgb, depth, K, up, boxes2d is None)
+        self.last_up, self.last_up_confidence, self.last_floor_height = up_used, up_conf, floor_height
         if boxes2d is not None:
             parsed = [(*_parse_box(b), 1.0) for b in boxes2d]
         else:
@@ -180,6 +193,7 @@ class ShapeDetector:
                     seg_labels=np.asarray(pred.seg_prob) > 0.5,
                 )
             )
+        objects = snap_to_floor(objects, up_used, floor_height, self.floor_snap)
         if boxes2d is None:  # built-in proposals overlap by design; given boxes are one per object
             objects = nms_3d(objects, self.nms_iou)
         objects.sort(key=lambda o: -o.score)

@@ -30,6 +30,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--surface-samples", type=int, default=2000, help="surface samples per shape set (default 2000)")
     p.add_argument("--score-threshold", type=float, default=0.0,
                    help="detector score threshold (default 0: keep everything, AP needs the full ranking)")
+    p.add_argument("--floor-snap", type=float, default=0.25,
+                   help="put box bottoms within this many metres of the measured floor on it (0 = off; default 0.25)")
     p.add_argument("--estimate-up", action="store_true",
                    help="let the detector estimate gravity instead of passing the frame's GT up vector")
     p.add_argument("--title", default=None, help="report title")
@@ -55,7 +57,8 @@ def main(args: argparse.Namespace) -> int:
     from .runner import evaluate
 
     try:
-        detector = ShapeDetector(weights=args.weights, device=args.device, score_threshold=args.score_threshold)
+        detector = ShapeDetector(weights=args.weights, device=args.device, score_threshold=args.score_threshold,
+                                 floor_snap=args.floor_snap)
     except FileNotFoundError as e:
         print(f"shape-detector evaluate: {e}", file=sys.stderr)
         return 2
@@ -83,6 +86,7 @@ def main(args: argparse.Namespace) -> int:
             "weights": str(getattr(detector, "weights", args.weights)),
             "data": str(args.data or f"generated on the fly, seeds {args.seed}..{args.seed + args.frames - 1}"),
             "score_threshold": args.score_threshold,
+            "floor_snap_m": args.floor_snap,
             "up": "estimated" if args.estimate_up else "ground truth",
         }
     )
