@@ -30,13 +30,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 def bench_pipeline(frames: int = 20, weights: str | None = None, threads: int | None = None, workers: int = 2) -> dict:
     """Median / p95 ms per VGA frame of ``ShapeDetector.detect`` with GT boxes and with built-in proposals."""
-    import torch
-
     from .detector import ShapeDetector
     from .synth.generate import generate_frame
 
-    if threads:
-        torch.set_num_threads(threads)
     det = ShapeDetector(weights=weights, score_threshold=0.0, num_threads=threads, workers=workers)
     scenes = [generate_frame(10_000 + i) for i in range(frames)]
     out: dict[str, dict] = {}

@@ -653,3 +653,22 @@ def _from_walls(N: np.ndarray, P: np.ndarray, u0: np.ndarray, cfg: GravityConfig
     # one family: the prior projected onto the wall plane
     up = normalize(u0 - (u0 @ d1) * d1)
     return GravityEstimate(up, 0.1, "walls", inliers=int(c1))
+
+
+def estimate_floor_along(grid: DepthGrid, K: np.ndarray, up: np.ndarray, gcfg: GravityConfig | None = None) -> GravityEstimate:
+    """A known ``up`` (camera frame; source 'prior', confidence 1) with the floor plane
+    (``floor_height``, m below the camera) measured along it when a floor is seen."""
+    up = up / np.linalg.norm(up)
+    est = estimate_up(None, K, prior_up=up, grid=grid, config=gcfg or GravityConfig())
+    out = GravityEstimate(up.copy(), 1.0, "prior", inliers=est.inliers)
+    if est.plane is not None and float(est.up @ up) > np.cos(np.radians(5.0)):
+        P = grid.pmean[grid.nvalid].astype(np.float64)
+        hh = P @ est.plane[:3] + est.plane[3]
+        near = np.abs(hh) < 0.05
+        if near.sum() >= 10:
+            d = -float(np.median(P[near] @ up))
+            out.floor_height = d
+            out.plane = np.array([*up, d])
+            if est.ceiling_height is not None:
+                out.ceiling_height = est.ceiling_height
+    return out

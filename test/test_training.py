@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from shape_detector.evaluation.iou import box2d_iou
 from shape_detector.geometry import points_in_box, rot_z
 from shape_detector.model.io import load_checkpoint, load_weights
 from shape_detector.model.primitives import coverage_loss
@@ -164,12 +165,12 @@ def test_proposal_frustums_are_labelled_by_2d_overlap():
     for i in range(fds.num_frustums(ds)):
         fr = frames[int(ds["frame_index"][i])]
         box = ds["box2d"][i]
-        ious = [fds.box_iou_2d(box, o.box2d) for o in fr.objects]
+        ious = [box2d_iou(box, o.box2d) for o in fr.objects]
         if ds["is_negative"][i]:
             assert max(ious, default=0.0) < 0.25 and ds["seg"][i].sum() == 0
         else:
             obj = fr.objects[int(ds["object_index"][i])]
-            assert fds.box_iou_2d(box, obj.box2d) >= 0.5 and ds["seg"][i].sum() > 0
+            assert box2d_iou(box, obj.box2d) >= 0.5 and ds["seg"][i].sum() > 0
             assert np.allclose(ds["size"][i], obj.size, atol=1e-5)
     # the GT-box frustums of the same frames come on top when gt_frustums is on
     both = fds.build_frustum_dataset(frames, num_points=128, augment_copies=1, negatives_per_frame=0,

@@ -240,6 +240,14 @@ def union_sqdist(
     return torch.where(torch.isfinite(v), v, torch.zeros_like(v))
 
 
+def _grouped_union_sqdist(pts, part_center, part_size, part_rotation, part_mask, scale) -> torch.Tensor:
+    """:func:`union_sqdist` of points grouped per primitive (B,M,S,3) -> (B,M,S), divided by
+    ``scale``² per object when given."""
+    B, M, S, _ = pts.shape
+    d2 = union_sqdist(pts.reshape(B, M * S, 3), part_center, part_size, part_rotation, part_mask).reshape(B, M, S)
+    return d2 if scale is None else d2 / (scale * scale).view(-1, 1, 1)
+
+
 def consistency_loss(
     prims: dict[str, torch.Tensor],
     part_center: torch.Tensor,
@@ -253,11 +261,7 @@ def consistency_loss(
     """Per-object consistency loss (B,): area-weighted squared distance of points sampled
     on each primitive's surface to the union of GT parts, averaged over primitives."""
     pts, w = sample_cuboid_surface(prims["center"], prims["size"], prims["rotation"], per_face, generator)
-    B, M, S, _ = pts.shape
-    d2 = union_sqdist(pts.reshape(B, M * S, 3), part_center, part_size, part_rotation, part_mask)
-    d2 = d2.reshape(B, M, S)
-    if scale is not None:
-        d2 = d2 / (scale * scale).view(-1, 1, 1)
+    d2 = _grouped_union_sqdist(pts, part_center, part_size, part_rotation, part_mask, scale)
     return (d2 * w).sum(-1).mean(-1)
 
 
@@ -279,10 +283,7 @@ def volume_consistency_loss(
     u = torch.rand((B, M, per_primitive, 3), generator=generator, device=prims["size"].device,
                    dtype=prims["size"].dtype) - 0.5
     pts = torch.einsum("bmij,bmnj->bmni", prims["rotation"], u * prims["size"].unsqueeze(2)) + prims["center"].unsqueeze(2)
-    d2 = union_sqdist(pts.reshape(B, M * per_primitive, 3), part_center, part_size, part_rotation, part_mask)
-    d2 = d2.reshape(B, M, per_primitive).mean(-1)
-    if scale is not None:
-        d2 = d2 / (scale * scale).view(-1, 1)
+    d2 = _grouped_union_sqdist(pts, part_center, part_size, part_rotation, part_mask, scale).mean(-1)
     with torch.no_grad():
         w = prims["size"].prod(-1)
         w = w / w.sum(1, keepdim=True).clamp_min(1e-12)

@@ -44,7 +44,7 @@ import cv2
 import numpy as np
 
 from ..geometry import upright_rotation
-from ..gravity import DepthGrid, GravityConfig, GravityEstimate, auto_stride, estimate_up, make_grid
+from ..gravity import DepthGrid, GravityConfig, GravityEstimate, auto_stride, estimate_floor_along, estimate_up, make_grid
 from . import Proposal
 
 _REF_POINTS = 160 * 120  # point-count thresholds are for a VGA frame at stride 4
@@ -136,7 +136,7 @@ class GeometricProposer:
         if up is None:
             grav = estimate_up(None, K, grid=grid, config=cfg.gravity)
         else:
-            grav = _given_up(grid, K, np.asarray(up, np.float64), cfg.gravity)
+            grav = estimate_floor_along(grid, K, np.asarray(up, np.float64), cfg.gravity)
         props = self.propose(grid, grav, rgb)
         return grav, props
 
@@ -799,20 +799,3 @@ def _dedup(boxes: np.ndarray, thr: float, iou: np.ndarray | None = None, limit: 
         suppressed[i] = True
     return keep
 
-
-def _given_up(grid: DepthGrid, K: np.ndarray, up: np.ndarray, gcfg: GravityConfig) -> GravityEstimate:
-    """A known ``up`` (source 'prior', confidence 1) with the floor plane measured along it."""
-    up = up / np.linalg.norm(up)
-    est = estimate_up(None, K, prior_up=up, grid=grid, config=gcfg)
-    out = GravityEstimate(up.copy(), 1.0, "prior", inliers=est.inliers)
-    if est.plane is not None and float(est.up @ up) > np.cos(np.radians(5.0)):
-        P = grid.pmean[grid.nvalid].astype(np.float64)
-        hh = P @ est.plane[:3] + est.plane[3]
-        near = np.abs(hh) < 0.05
-        if near.sum() >= 10:
-            d = -float(np.median(P[near] @ up))
-            out.floor_height = d
-            out.plane = np.array([*up, d])
-            if est.ceiling_height is not None:
-                out.ceiling_height = est.ceiling_height
-    return out

@@ -38,6 +38,7 @@ Arrays (K frustums, N points, P max parts, S surface samples)::
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass
@@ -47,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from ..classes import CLASS_TO_ID, NUM_CLASSES
+from ..evaluation.iou import box2d_iou
 from ..frustum import backproject, clip_box, extract_frustum
 from ..geometry import rotation_to_heading, upright_rotation, wrap_angle
 from ..model.primitives import sample_parts_surface_np
@@ -83,14 +85,6 @@ class FrustumDatasetConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
-
-
-def box_iou_2d(a, b) -> float:
-    ix = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    iy = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = ix * iy
-    ua = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return inter / ua if ua > 0 else 0.0
 
 
 def jitter_box(box, rng: np.random.Generator, ratio: float, width: int, height: int):
@@ -137,7 +131,7 @@ def _random_background_box(frame: Frame, rng, cfg: FrustumDatasetConfig, gt_boxe
         x1 = rng.uniform(0, W - w)
         y1 = rng.uniform(0, H - h)
         b = (x1, y1, x1 + w, y1 + h)
-        if all(box_iou_2d(b, g) < cfg.neg_max_iou * 0.5 for g in gt_boxes):
+        if all(box2d_iou(b, g) < cfg.neg_max_iou * 0.5 for g in gt_boxes):
             return b
     return None
 
@@ -157,7 +151,7 @@ def _partial_box(frame: Frame, rng, cfg: FrustumDatasetConfig, gt_boxes):
         b = (max(0.0, x1), max(0.0, y1), min(float(frame.width), x1 + w), min(float(frame.height), y1 + h))
         if b[2] - b[0] < 4 or b[3] - b[1] < 4:
             continue
-        if all(box_iou_2d(b, gg) < cfg.neg_max_iou for gg in gt_boxes):
+        if all(box2d_iou(b, gg) < cfg.neg_max_iou for gg in gt_boxes):
             return b
     return None
 
@@ -282,7 +276,7 @@ def _frame_frustums(frame: Frame, fi: int, cfg: FrustumDatasetConfig, rng: np.ra
         box = None
         if kind == NEG_CLUTTER and clutter:
             box = jitter_box(clutter[int(rng.integers(len(clutter)))], rng, cfg.box_jitter, W, H)
-            if any(box_iou_2d(box, g) >= cfg.neg_max_iou for g in gt_boxes):
+            if any(box2d_iou(box, g) >= cfg.neg_max_iou for g in gt_boxes):
                 box = None
         if box is None and kind in (NEG_CLUTTER, NEG_PARTIAL):
             box = _partial_box(frame, rng, cfg, gt_boxes)
@@ -295,21 +289,21 @@ def _frame_frustums(frame: Frame, fi: int, cfg: FrustumDatasetConfig, rng: np.ra
         add_negative(box, kind)
 
 
-_PROPOSER = None
+@functools.lru_cache(maxsize=1)
+def _proposer():
+    """The built-in proposer, built once per process (its config is the detector's default)."""
+    from ..proposals.geometric import GeometricProposer
+
+    return GeometricProposer()
 
 
 def _proposal_frustums(frame: Frame, cfg: FrustumDatasetConfig, rng: np.random.Generator, eligible, gt_boxes,
                        add_positive, add_negative) -> None:
     """Positives / hard negatives from the built-in proposer's boxes (see the module docstring)."""
-    global _PROPOSER
-    if _PROPOSER is None:
-        from ..proposals.geometric import GeometricProposer
-
-        _PROPOSER = GeometricProposer()
-    _, props = _PROPOSER(frame.depth, frame.K, up=None, rgb=frame.rgb)
+    _, props = _proposer()(frame.depth, frame.K, up=None, rgb=frame.rgb)
     pos, neg = [], []
     for p in props[: cfg.proposal_top]:
-        ious = [box_iou_2d(p.box2d, g) for g in gt_boxes]
+        ious = [box2d_iou(p.box2d, g) for g in gt_boxes]
         best = int(np.argmax(ious)) if ious else -1
         if best >= 0 and ious[best] >= cfg.proposal_pos_iou:
             if best in eligible:

@@ -580,7 +580,8 @@ def train(
     torch.manual_seed(seed)
     np.random.seed(seed % (2**32))
     model = FrustumShapeNet(mcfg).to(device)
-    if init_weights is not None and not (resume and (Path(out_dir) / "checkpoint.pt").is_file()):
+    ck_path = out_dir / "checkpoint.pt"
+    if init_weights is not None and not (resume and ck_path.is_file()):
         init_model, _ = load_weights(init_weights, device)
         if init_model.config.to_dict() != mcfg.to_dict():
             raise ValueError(f"--init {init_weights}: its model config differs from the training config's")
@@ -597,7 +598,6 @@ def train(
     history: dict[str, Any] = {"epochs": [], "steps": []}
     start_epoch, step, planned_epochs = 0, 0, int(cfg.epochs)
     best, elapsed_before = -float("inf"), 0.0
-    ck_path = out_dir / "checkpoint.pt"
     gen = torch.Generator()
     gen.manual_seed(seed)
     if resume and ck_path.is_file():
