@@ -20,6 +20,7 @@ from .frustum import backproject, extract_frustum
 from .inputs import normalize_inputs
 from .floor import snap_to_floor
 from .nms import nms_3d
+from .point_fit import grow_all_to_points
 from .types import Object3D
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "default.pt"
@@ -58,6 +59,8 @@ class ShapeDetector:
     other core busy. 1 = serial. ``floor_snap``: boxes whose bottom lies within this many
     metres of the floor measured in the depth get their bottom put on it (furniture
     stands on the floor; the top is kept), 0 = off; see :mod:`shape_detector.floor`.
+    ``point_fit``: grow each box to cover its segmented points between this quantile and
+    its complement along each box axis (0 = off; see :mod:`shape_detector.point_fit`).
     """
 
     def __init__(
@@ -71,6 +74,7 @@ class ShapeDetector:
         num_threads: int | None = 1,
         workers: int = 2,
         floor_snap: float = 0.25,
+        point_fit: float = 0.15,
     ) -> None:
         from .model.predictor import FrustumPredictor
 
@@ -95,6 +99,9 @@ class ShapeDetector:
         self.last_up_confidence: float = 0.0
         self.last_floor_height: float | None = None
         self.floor_snap = float(floor_snap)
+        self.point_fit = float(point_fit)
+        if not 0.0 <= self.point_fit < 0.5:
+            raise ValueError(f"point_fit is a quantile in [0, 0.5), got {point_fit}")
 
     # -- stages -----------------------------------------------------------------------
     def _get_proposer(self):
@@ -189,8 +196,11 @@ class ShapeDetector:
                     primitives=list(pred.primitives),
                     pixel_index=frustums[i].pixel_index,
                     seg_labels=np.asarray(pred.seg_prob) > 0.5,
+                    class_scores=np.asarray(pred.class_probs[: len(CLASS_TO_ID)], dtype=np.float64),
                 )
             )
+        if points_cam is not None:
+            objects = grow_all_to_points(objects, points_cam, self.point_fit)
         objects = snap_to_floor(objects, up_used, floor_height, self.floor_snap)
         if boxes2d is None:  # built-in proposals overlap by design; given boxes are one per object
             objects = nms_3d(objects, self.nms_iou)

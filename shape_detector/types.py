@@ -74,6 +74,9 @@ class Object3D:
     #: network's foreground decision for each (None when not computed).
     pixel_index: np.ndarray | None = field(default=None, repr=False)
     seg_labels: np.ndarray | None = field(default=None, repr=False)
+    #: the network's calibrated probability of each class of ``CLASSES`` (background
+    #: excluded, so it sums to 1 - P(background)); None when not computed.
+    class_scores: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         self.center = _vec(self.center)

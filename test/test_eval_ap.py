@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from shape_detector.evaluation.ap import evaluate_detections, pr_curve, voc_ap
+from shape_detector.classes import CLASSES
+from shape_detector.evaluation.ap import evaluate_detections, expand_class_hypotheses, pr_curve, voc_ap
 from shape_detector.types import GTObject, Object3D
 
 I3 = np.eye(3)
@@ -121,3 +122,21 @@ def test_score_ties_keep_input_order_and_empty_input():
     assert r["ap"]["0.5"]["chair"] == pytest.approx(0.5)
     r = evaluate_detections([[]], [[]], (0.5,), classes=("chair",))
     assert math.isnan(r["mAP"]["0.5"])
+
+
+def test_class_hypotheses_count_a_box_for_its_runner_up_class():
+    # one box on a desk, classified table (0.6) over desk (0.3): AP(desk) 0 -> 1 with top-2
+    probs = np.zeros(len(CLASSES))
+    probs[CLASSES.index("table")], probs[CLASSES.index("desk")], probs[CLASSES.index("chair")] = 0.6, 0.3, 0.05
+    d = Object3D("table", 0.6, [0, 0, 0], [1, 1, 1], I3, class_scores=probs)
+    gts = [[gt("desk", 0.0)]]
+    one = evaluate_detections([[d]], gts, (0.25,))
+    assert one["ap"]["0.25"]["desk"] == 0.0
+    two = expand_class_hypotheses([d], 2)
+    assert [(e.class_name, e.score) for e in two] == [("table", 0.6), ("desk", 0.3)]
+    assert d.class_name == "table" and d.score == 0.6  # the input is not modified
+    assert evaluate_detections([two], gts, (0.25,))["ap"]["0.25"]["desk"] == pytest.approx(1.0)
+    # k = 1 and detections without class scores pass through
+    plain = det("chair", 0.5, 3.0)
+    assert expand_class_hypotheses([d, plain], 1) == [d, plain]
+    assert expand_class_hypotheses([plain], 3) == [plain]

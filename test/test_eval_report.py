@@ -94,6 +94,25 @@ def test_runner_detector_boxes_pairs_by_iou():
     assert [p["pairing"] for p in res["pairs"]] == ["iou>=0.25"]
     assert res["detection"]["ap"]["0.5"]["table"] == pytest.approx(1.0)
     assert res["detection"]["ap"]["0.5"]["chair"] == 0.0
+    assert "detection_class_hypotheses" not in res
+
+
+def test_runner_class_hypotheses_section(tmp_path):
+    frames = [make_frame(0)]
+    g = frames[0].objects[1]  # a table
+    probs = np.zeros(len(shape_detector.classes.CLASSES))
+    probs[shape_detector.classes.CLASSES.index("desk")] = 0.7
+    probs[shape_detector.classes.CLASSES.index("table")] = 0.2
+
+    def detect(frame, boxes2d):
+        return [Object3D("desk", 0.7, g.center, g.size, g.rotation, class_scores=probs)]
+
+    res = evaluate(detect, frames, use_gt_boxes=False, class_hypotheses=2)
+    assert res["detection"]["ap"]["0.5"]["table"] == 0.0
+    hyp = res["detection_class_hypotheses"]
+    assert hyp["k"] == 2 and hyp["ap"]["0.5"]["table"] == pytest.approx(1.0)
+    md = write_report(res, tmp_path)["markdown"].read_text()
+    assert "each box counted for its top 2 classes" in md
 
 
 def test_markdown_table_and_jsonable():

@@ -232,3 +232,27 @@ def evaluate_detections(
         vals = [v for c, v in res["ap"][k].items() if res["num_gt"][c] > 0]
         res["mAP"][k] = float(np.mean(vals)) if vals else float("nan")
     return res
+
+
+def expand_class_hypotheses(dets: Sequence[Any], k: int, classes: Sequence[str] = CLASSES) -> list[Any]:
+    """Each detection as up to ``k`` detections, one per class among its ``k`` most probable,
+    scored by that class's probability (the per-class-proposal protocol VoteNet and others
+    use on SUN RGB-D: a box may count for its second guess). Detections without
+    ``class_scores`` (a per-class probability vector over ``classes``) pass through as they
+    are; ``k`` <= 1 returns them unchanged. Copies; the inputs are not modified."""
+    import copy
+
+    if k <= 1:
+        return list(dets)
+    out = []
+    for d in dets:
+        scores = getattr(d, "class_scores", None)
+        if scores is None or len(scores) != len(classes):
+            out.append(d)
+            continue
+        scores = np.asarray(scores, dtype=np.float64)
+        for c in np.argsort(-scores, kind="stable")[:k]:
+            e = copy.copy(d)
+            e.class_name, e.score = classes[int(c)], float(scores[c])
+            out.append(e)
+    return out

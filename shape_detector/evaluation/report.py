@@ -278,6 +278,15 @@ def write_report(results: Mapping[str, Any], out_dir: str | Path, title: str = "
                                                  ["setting", "value"]), ""]
     if det is not None:
         md += _ap_section(det, classes)
+    hyp = results.get("detection_class_hypotheses")
+    if isinstance(hyp, Mapping) and hyp.get("ap"):
+        keys = list(hyp["ap"])
+        rows = [[c] + [hyp["ap"][k].get(c) for k in keys] for c in classes]
+        rows.append(["**mAP**"] + [hyp.get("mAP", {}).get(k) for k in keys])
+        md += [f"## Detection AP, each box counted for its top {hyp.get('k')} classes", "",
+               "VoteNet-style per-class proposals: every detection is also scored for its runner-up "
+               "classes (by their probability). The table above (one class per box) is what the "
+               "detector outputs.", "", markdown_table(rows, ["class"] + [f"AP@{k}" for k in keys]), ""]
     if isinstance(results.get("box_errors"), Mapping):
         md += _box_section(results["box_errors"], classes)
     if isinstance(results.get("shape"), Mapping):

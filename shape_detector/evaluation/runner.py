@@ -33,7 +33,7 @@ import numpy as np
 
 from ..classes import CLASSES
 from ..types import Frame, Object3D
-from .ap import evaluate_detections, is_ignored, thr_key
+from .ap import evaluate_detections, expand_class_hypotheses, is_ignored, thr_key
 from .box_metrics import aggregate_box_errors, pair_errors, segmentation_accuracy
 from .report import to_jsonable
 from .shape_metrics import shape_iou, surface_distance, to_box_frame
@@ -95,6 +95,7 @@ def evaluate(
     max_frames: int | None = None,
     progress: Callable[[int, float], None] | None = None,
     keep_pairs: bool = True,
+    class_hypotheses: int = 1,
 ) -> dict[str, Any]:
     """Evaluate ``detect_fn`` on ``frames`` (each with GT ``objects``); JSON-able result.
 
@@ -148,6 +149,15 @@ def evaluate(
     detection = evaluate_detections(
         dets_pf, gts_pf, thresholds, classes, min_visible=min_visible, ups_per_frame=ups
     )
+
+    hypotheses = None
+    if class_hypotheses > 1 and not use_gt_boxes:
+        hypotheses = evaluate_detections(
+            [expand_class_hypotheses(d, class_hypotheses, classes) for d in dets_pf],
+            gts_pf, thresholds, classes, min_visible=min_visible, ups_per_frame=ups,
+        )
+        hypotheses = {"k": int(class_hypotheses), "ap": hypotheses["ap"], "mAP": hypotheses["mAP"],
+                      "num_det": hypotheses["num_det"]}
 
     # ---- pairs for the box / shape errors
     key0 = thr_key(min(thresholds)) if thresholds else None
@@ -238,6 +248,7 @@ def evaluate(
         },
         "num_frames": len(dets_pf),
         "detection": detection,
+        **({"detection_class_hypotheses": hypotheses} if hypotheses is not None else {}),
         "box_errors": box,
         "shape": shape,
         "timing": timing,
