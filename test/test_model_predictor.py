@@ -184,3 +184,28 @@ def test_worker_threads_split_the_batch_without_changing_results(weights):
         np.testing.assert_allclose(p.seg_prob, q.seg_prob, atol=1e-5)
     # a batch smaller than two chunks stays on the calling thread
     assert len(split.predict(frs[:3], ids[:3])) == 3
+
+
+def test_shared_mlp_forward_max_pools_like_forward_in_every_mode():
+    """The inference shortcut (last layer's bias + ReLU after the max) changes nothing."""
+    from shape_detector.model.pointnet import SharedMLP
+
+    torch.manual_seed(2)
+    mlp = SharedMLP(3, (8, 16, 32))
+    x = torch.randn(4, 50, 3)
+    mlp.train()
+    mlp(torch.randn(4, 50, 3))  # running statistics
+    for mode in ("train", "eval", "fused"):
+        if mode == "eval":
+            mlp.eval()
+        if mode == "fused":
+            for layer in mlp.layers:
+                layer.fuse_batchnorm()
+        with torch.no_grad():
+            outs = mlp(x, return_all=True)
+            pooled, kept = mlp.forward_max(x, keep=1)
+            assert torch.allclose(pooled, outs[-1].amax(dim=1), atol=1e-5), mode
+            assert torch.allclose(kept, outs[1], atol=1e-6), mode
+            assert torch.allclose(mlp.forward_max(x), pooled)
+    with pytest.raises(ValueError, match="keep"):
+        mlp.forward_max(x, keep=2)

@@ -92,9 +92,7 @@ class FrustumShapeNet(nn.Module):
     def segment(self, pts: torch.Tensor, one_hot: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Per-point logits (B,N,2) and the global segmentation feature (B,C)."""
         cfg = self.config
-        outs = self.seg_mlp(pts[..., : cfg.in_channels], return_all=True)
-        local = outs[cfg.seg_local_index]
-        glob = outs[-1].max(dim=1).values
+        glob, local = self.seg_mlp.forward_max(pts[..., : cfg.in_channels], keep=cfg.seg_local_index)
         h = self.seg_head_local(local) + self.seg_head_global(torch.cat([glob, one_hot], 1)).unsqueeze(1)
         if self.seg_head_bn is not None:
             shape = h.shape
@@ -158,12 +156,12 @@ class FrustumShapeNet(nn.Module):
         obj, mask_mean, fg_count = self.gather_object_points(xyz, fg, random_gather)
         # T-Net
         local = obj - mask_mean.unsqueeze(1)
-        tfeat = self.tnet_mlp(local).max(dim=1).values
+        tfeat = self.tnet_mlp.forward_max(local)
         center_delta = self.tnet_head(torch.cat([tfeat, one_hot], 1))
         stage1 = mask_mean + center_delta
         # box PointNet
         local = local - center_delta.unsqueeze(1)
-        feat = self.box_mlp(local).max(dim=1).values
+        feat = self.box_mlp.forward_max(local)
         fo = torch.cat([feat, one_hot], 1)
         heads = split_box_head(self.box_head(fo), cfg.num_heading_bins, cfg.num_size_clusters)
         center = stage1 + heads["center_res"]
@@ -183,7 +181,7 @@ class FrustumShapeNet(nn.Module):
             c, s = torch.cos(sh).unsqueeze(1), torch.sin(sh).unsqueeze(1)
             q = torch.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], d[..., 2]], -1)
             q = q / ss.clamp_min(0.02).unsqueeze(1)
-            shape_in = torch.cat([fo, self.shape_mlp(q).max(dim=1).values], 1)
+            shape_in = torch.cat([fo, self.shape_mlp.forward_max(q)], 1)
         out: dict[str, torch.Tensor] = {
             "seg_logits": seg_logits,
             "fg_count": fg_count,

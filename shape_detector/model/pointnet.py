@@ -36,7 +36,9 @@ class PointLinear(nn.Module):
         if self.bn is not None:
             shape = y.shape
             y = self.bn(y.reshape(-1, shape[-1])).reshape(shape)
-        return torch.relu(y) if self.relu else y
+        if not self.relu:
+            return y
+        return torch.relu(y) if self.training else torch.relu_(y)  # in place: one pass less at inference
 
 
 class SharedMLP(nn.Module):
@@ -58,6 +60,32 @@ class SharedMLP(nn.Module):
             x = layer(x)
             outs.append(x)
         return outs if return_all else x
+
+    def forward_max(self, x: torch.Tensor, keep: int | None = None):
+        """``forward(x)`` max-pooled over the point axis: (B, N, C_in) -> (B, C_out); with
+        ``keep`` (index of a layer before the last) also that layer's per-point output.
+
+        With the last layer's BatchNorm folded (inference), its bias and ReLU commute with
+        the max (``max_n relu(z_n W + b) = relu(max_n(z_n W) + b)``), so they run on the
+        pooled (B, C) feature instead of the widest (B, N, C) tensor; same result.
+        """
+        *body, last = self.layers
+        kept = None
+        for i, layer in enumerate(body):
+            x = layer(x)
+            if i == keep:
+                kept = x
+        if keep is not None and kept is None:
+            raise ValueError(f"keep={keep} must index a layer before the last of {len(self.layers)}")
+        if last.bn is not None or self.training:
+            y = last(x).amax(dim=1)
+        else:
+            y = torch.matmul(x, last.linear.weight.t()).amax(dim=1)
+            if last.linear.bias is not None:
+                y = y + last.linear.bias
+            if last.relu:
+                y = torch.relu(y)
+        return y if keep is None else (y, kept)
 
 
 class FCHead(nn.Module):
@@ -100,9 +128,9 @@ def fuse_linear_bn(linear: nn.Linear, bn: nn.BatchNorm1d) -> nn.Linear:
 def masked_max(x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
     """Max over the point axis of ``x`` (B, N, C); ``mask`` (B, N) bool limits the points."""
     if mask is None:
-        return x.max(dim=1).values
+        return x.amax(dim=1)  # amax: ~10x faster than max(dim).values, which also finds indices
     neg = torch.finfo(x.dtype).min
-    return x.masked_fill(~mask.unsqueeze(-1), neg).max(dim=1).values
+    return x.masked_fill(~mask.unsqueeze(-1), neg).amax(dim=1)
 
 
 def set_bn_momentum(module: nn.Module, momentum: float) -> None:
