@@ -515,6 +515,7 @@ def make_detector(
     proposals: str = "geometric",
     factory: str | None = None,
     workers: int = 2,
+    precision: str = "fp32",
 ) -> Any:
     """The detector for the CLI and the node: ``ShapeDetector`` or ``factory(**same kwargs)``.
 
@@ -524,7 +525,7 @@ def make_detector(
         raise ValueError(f"proposals must be 'geometric' or 'external', got {proposals!r}")
     kwargs = dict(weights=weights or None, device=device, score_threshold=score_threshold,
                   max_objects=max_objects, proposals="none" if proposals == "external" else proposals,
-                  workers=workers)
+                  workers=workers, precision=precision)
     if factory:
         return load_factory(factory)(**kwargs)
     from .detector import ShapeDetector
@@ -552,6 +553,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     d.add_argument("--device", default="cpu")
     d.add_argument("--score-threshold", type=float, default=0.3)
     d.add_argument("--max-objects", type=int, default=20)
+    d.add_argument("--precision", default="fp32", choices=("fp32", "bf16"),
+                   help="network arithmetic (bf16: faster on CPUs with AMX / AVX512-BF16)")
     d.add_argument("--workers", type=int, default=2, help="threads the network splits a frame's frustums over (default 2)")
     d.add_argument("--proposals", choices=("geometric", "external"), default=None,
                    help="2D proposal source (default: external when --detections2d is given)")
@@ -634,7 +637,8 @@ def main(args: argparse.Namespace) -> int:
         return 2
     try:
         detector = make_detector(args.weights, args.device, args.score_threshold, args.max_objects, proposals,
-                                 args.detector, workers=args.workers)
+                                 args.detector, workers=args.workers,
+                                 precision=args.precision)
     except Exception as e:  # noqa: BLE001
         print(f"shape-detector replay: cannot create the detector: {type(e).__name__}: {e}", file=sys.stderr)
         return 1

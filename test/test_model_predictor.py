@@ -209,3 +209,20 @@ def test_shared_mlp_forward_max_pools_like_forward_in_every_mode():
             assert torch.allclose(mlp.forward_max(x), pooled)
     with pytest.raises(ValueError, match="keep"):
         mlp.forward_max(x, keep=2)
+
+
+def test_bf16_precision_runs_and_stays_close(weights):
+    frame = make_frame(5, 3)
+    frs = [extract_frustum(frame.rgb, frame.depth, frame.K, o.box2d, 512, up=frame.up,
+                           rng=np.random.default_rng(i)) for i, o in enumerate(frame.objects)]
+    ids = [CLASSES.index(o.class_name) for o in frame.objects]
+    ref = FrustumPredictor(weights, device="cpu", num_threads=1).predict(frs, ids)
+    bf = FrustumPredictor(weights, device="cpu", num_threads=1, precision="bf16")
+    got = bf.predict(frs, ids)
+    assert bf.precision == "bf16" and len(got) == len(ref)
+    # same class given, same points: the boxes agree to bfloat16's ~3 significant digits
+    # (a heading or size bin may flip between near-equal scores, so compare the median)
+    err = np.median([np.linalg.norm(a.center - b.center) for a, b in zip(ref, got)])
+    assert err < 0.05
+    with pytest.raises(ValueError, match="precision"):
+        FrustumPredictor(weights, device="cpu", precision="fp16")

@@ -42,10 +42,12 @@ def bench_network(
     verbose: bool = True,
     threads: int | None = None,
     workers: int = 1,
+    precision: str = "fp32",
 ) -> dict:
     """Median / mean ms per frame (one batched ``predict`` of ``count`` frustums).
 
-    ``workers``: threads the batch is split over (:class:`FrustumPredictor`).
+    ``workers``: threads the batch is split over (:class:`FrustumPredictor`); ``precision``
+    'fp32' or 'bf16'.
 
     ``threads`` is an alias of ``num_threads`` (used when not None).
 
@@ -64,7 +66,7 @@ def bench_network(
         torch.set_num_threads(int(num_threads))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        pred = FrustumPredictor(weights, device=device, num_threads=num_threads, workers=workers)
+        pred = FrustumPredictor(weights, device=device, num_threads=num_threads, workers=workers, precision=precision)
     n_pts = int(num_points or pred.num_points)
     rng = np.random.default_rng(0)
     results = {}
@@ -90,12 +92,13 @@ def bench_network(
             print(
                 f"network: {c:3d} objects/frame  {med:7.2f} ms/frame (median of {repeats})  "
                 f"{1000.0 / med:6.1f} frames/s  cpu {results[int(c)]['cpu_ms']:.1f} ms  "
-                f"[{pred.device}, {torch.get_num_threads()} threads, {pred.workers} workers, {n_pts} pts]"
+                f"[{pred.device}, {torch.get_num_threads()} threads, {pred.workers} workers, {n_pts} pts, {pred.precision}]"
             )
     return {
         "device": str(pred.device),
         "num_threads": torch.get_num_threads(),
         "workers": pred.workers,
+        "precision": pred.precision,
         "num_points": n_pts,
         "results": results,
     }
