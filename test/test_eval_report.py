@@ -163,3 +163,15 @@ def test_cli_with_generated_frames(tmp_path, monkeypatch):
     assert json.loads((tmp_path / "o" / "report.json").read_text())["settings"]["up"] == "ground truth"
     args = parser.parse_args(["--data", str(tmp_path / "missing"), "--out", str(tmp_path / "o2")])
     assert eval_cli.main(args) == 2
+
+
+def test_shape_class_mean_averages_class_means_not_pairs():
+    from shape_detector.evaluation.runner import _class_mean
+
+    recs = [{"class": "chair", "iou_camera": v, "distance_camera": 0.1, "iou_object": v, "distance_object": 0.1}
+            for v in (0.1, 0.1, 0.1)]
+    recs.append({"class": "bed", "iou_camera": 0.7, "distance_camera": 0.3, "iou_object": 0.7, "distance_object": 0.3})
+    cm = _class_mean(recs, ["bed", "table", "chair"])
+    assert cm["classes"] == 2 and cm["n"] == 4
+    assert cm["iou_object"]["mean"] == pytest.approx(0.4)  # (0.1 + 0.7) / 2, not 1.0 / 4
+    assert cm["distance_camera"]["mean"] == pytest.approx(0.2)

@@ -238,10 +238,14 @@ def _shape_section(shape: Mapping[str, Any], classes: Sequence[str]) -> list[str
     headers = ["class", "n", "IoU (camera)", "surf. dist (camera)", "IoU (object)", "surf. dist (object)"]
     per = dict(shape.get("per_class", {}))
     rows = []
-    for name, s in _rows_with_pairs(per, classes) + [("**all**", shape.get("all", {"n": 0}))]:
+    extra = [("**all**", shape.get("all", {"n": 0}))]
+    if isinstance(shape.get("class_mean"), Mapping):
+        extra.append(("**class mean**", shape["class_mean"]))
+    for name, s in _rows_with_pairs(per, classes) + extra:
         rows.append([name, s.get("n", 0), s.get("iou_camera"), s.get("distance_camera"),
                      s.get("iou_object"), s.get("distance_object")])
-    lines = ["## Shape primitives vs GT parts (means over pairs; classes without pairs omitted)", ""]
+    lines = ["## Shape primitives vs GT parts (means over pairs; classes without pairs omitted; "
+             "'class mean' averages the class rows)", ""]
     if shape.get("note"):
         lines += [str(shape["note"]), ""]
     return lines + [markdown_table(rows, headers), ""]
