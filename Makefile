@@ -64,9 +64,9 @@ weights: $(DATA)/train/index.json $(DATA)/val/index.json
 
 evaluate: $(DATA)/test/index.json
 	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 150 --min-visible 0.1 --out docs/eval/gt_boxes
-	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 150 --min-visible 0.1 --out docs/eval/builtin --no-gt-boxes --estimate-up
+	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 150 --min-visible 0.1 --out docs/eval/builtin --no-gt-boxes --estimate-up --class-hypotheses 2
 	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 150 --out docs/eval/gt_boxes_all
-	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 150 --out docs/eval/builtin_all --no-gt-boxes --estimate-up
+	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 150 --out docs/eval/builtin_all --no-gt-boxes --estimate-up --class-hypotheses 2
 
 ablation: $(DATA)/train/index.json $(DATA)/val/index.json
 	bash scripts/ablation.sh
