@@ -63,6 +63,11 @@ class ShapeDetector:
     its complement along each box axis (0 = off; see :mod:`shape_detector.point_fit`).
     ``precision``: the network's arithmetic, ``"fp32"`` or ``"bf16"`` (faster on CPUs with
     AMX / AVX512-BF16; see :class:`~shape_detector.model.predictor.FrustumPredictor`).
+    ``mirror_tta``: also run each frustum mirrored and average the two predictions
+    (:func:`~shape_detector.model.predictor.merge_mirrored`) -- ``"given"`` (default: only
+    for given ``boxes2d``, a few per frame), ``"always"`` or ``"never"``. On the validation
+    frames with GT boxes it raised mAP@0.5 from 70.2 to 74.0 for twice the network work;
+    with the ~20 built-in proposals per frame it gained 0.9 points for 2x the network time.
     """
 
     def __init__(
@@ -78,6 +83,7 @@ class ShapeDetector:
         floor_snap: float = 0.25,
         point_fit: float = 0.15,
         precision: str = "fp32",
+        mirror_tta: str = "given",
     ) -> None:
         from .model.predictor import FrustumPredictor
 
@@ -105,6 +111,9 @@ class ShapeDetector:
         self.last_floor_height: float | None = None
         self.floor_snap = float(floor_snap)
         self.point_fit = float(point_fit)
+        if mirror_tta not in ("given", "always", "never"):
+            raise ValueError(f"mirror_tta must be 'given', 'always' or 'never', got {mirror_tta!r}")
+        self.mirror_tta = mirror_tta
         if not 0.0 <= self.point_fit < 0.5:
             raise ValueError(f"point_fit is a quantile in [0, 0.5), got {point_fit}")
 
@@ -184,6 +193,7 @@ class ShapeDetector:
         preds = self.predictor.predict(
             [frustums[i] for i in keep],
             [CLASS_TO_ID[parsed[i][1]] if parsed[i][1] is not None else None for i in keep],
+            mirror=self.mirror_tta == "always" or (self.mirror_tta == "given" and boxes2d is not None),
         )
         t4 = time.perf_counter()
         objects: list[Object3D] = []

@@ -51,6 +51,8 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                 {"integer_range": [IntegerRange(from_value=1, to_value=64, step=1)]}),
     "precision": ("fp32", "network arithmetic: 'fp32' or 'bf16' (about 2x faster with many frustums on CPUs "
                   "with AMX / AVX512-BF16, slower without)", True, {}),
+    "mirror_tta": ("given", "also run each frustum mirrored and average: 'given' (external boxes only), "
+                   "'always' or 'never'", True, {}),
     "proposal_source": ("geometric", "2D proposals: 'geometric' (built in) or 'external' (the detections2d "
                         "topic, vision_msgs/Detection2DArray, synchronised with the image)", True, {}),
     "sync_slop": (0.02, "approximate time synchroniser slop between image and depth stamps, seconds", False,
@@ -216,6 +218,7 @@ class DetectorNode(Node):
             max_objects=int(self.p["max_objects"]),
             workers=int(self.p["workers"]),
             precision=str(self.p["precision"]),
+            mirror_tta=str(self.p["mirror_tta"]),
             # external 2D boxes come with every frame: no built-in proposer needed
             proposals="none" if self.external else "geometric",
         )

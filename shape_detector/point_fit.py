@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .types import Cuboid, Object3D
+from .types import Object3D
 
 #: fewer segmented points than this: the box is left as the network placed it
 MIN_POINTS = 20
@@ -48,15 +48,13 @@ def grow_to_points(obj: Object3D, points_cam: np.ndarray, quantile: float = 0.15
     lo, hi = np.minimum(-half, q_lo), np.maximum(half, q_hi)
     ratio = (hi - lo) / np.maximum(obj.size, 1e-9)
     mid = 0.5 * (lo + hi)
-    R = obj.rotation
-    prims = []
-    for c in obj.primitives:  # stretch the primitives with their box (they are predicted in its frame)
-        axes_in_box = R.T @ c.rotation  # columns: the primitive's axes in box coordinates
-        stretch = np.linalg.norm(ratio[:, None] * axes_in_box, axis=0)
-        prims.append(Cuboid(obj.center + R @ (mid + ratio * (R.T @ (c.center - obj.center))), c.size * stretch, c.rotation))
-    obj.center = obj.center + R @ mid
+    R, c0 = obj.rotation, obj.center
+    # the primitives (predicted in the box frame, in units of its size) stretch with the box
+    obj.primitives = [
+        p.transformed(R.T, -R.T @ c0).stretched(ratio).transformed(R, c0 + R @ mid) for p in obj.primitives
+    ]
+    obj.center = c0 + R @ mid
     obj.size = hi - lo
-    obj.primitives = prims
     return obj
 
 

@@ -46,9 +46,10 @@ def _check_object_contract(obj, up: np.ndarray) -> None:
 
 @pytest.mark.xfail(
     strict=False,
-    reason="issue #4 acceptance not met yet: the shipped weights place this box's centre 0.11 m off "
-    "(width 0.90 m for 1.00, height 1.05 m for 1.17; test-set median centre error 0.125 m); the "
-    "assertion stays at 5 cm until the model gets there",
+    reason="issue #4 acceptance not met yet: the shipped weights place this box's centre 0.21 m off, "
+    "0.19 m of it sideways (width 0.86 m for 1.00, height 1.10 m for 1.17): in this textureless grey "
+    "scene the segmentation drops a quarter of the front face (test-set median centre error 0.12 m); "
+    "the assertion stays at 5 cm until the model gets there",
 )
 def test_hand_placed_box_is_recovered_within_5cm(detector):
     frame, centre, size, rotation = _dresser_scene()
@@ -109,3 +110,17 @@ def test_warm_up_runs_the_whole_pipeline(detector):
     detector.last_timing = {}
     detector.warm_up()
     assert detector.last_timing["num_frustums"] >= 1 and detector.last_up is not None
+
+
+def test_mirror_tta_modes(detector):
+    frame, centre, *_ = _dresser_scene()
+    box = [(*frame.objects[0].box2d, "dresser")]
+    plain = ShapeDetector(score_threshold=0.0, mirror_tta="never")
+    a = plain.detect(frame.rgb, frame.depth, frame.K, boxes2d=box, up=frame.up)[0]
+    b = detector.detect(frame.rgb, frame.depth, frame.K, boxes2d=box, up=frame.up)[0]  # default 'given'
+    _check_object_contract(a, frame.up)
+    _check_object_contract(b, frame.up)
+    assert np.linalg.norm(a.center - b.center) > 1e-4  # the mirrored pass changes the given-box result
+    assert np.linalg.norm(b.center - centre) < 0.3
+    with pytest.raises(ValueError, match="mirror_tta"):
+        ShapeDetector(mirror_tta="sometimes")

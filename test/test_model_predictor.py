@@ -226,3 +226,64 @@ def test_bf16_precision_runs_and_stays_close(weights):
     assert err < 0.05
     with pytest.raises(ValueError, match="precision"):
         FrustumPredictor(weights, device="cpu", precision="fp16")
+
+
+def _arrays(center, heading, size, probs, prim_center, prim_size, prim_rotation):
+    B = len(center)
+    return {
+        "center": np.asarray(center, np.float32), "heading": np.asarray(heading, np.float32),
+        "size": np.asarray(size, np.float32), "cluster": np.zeros(B, np.float32),
+        "probs": np.asarray(probs, np.float32), "seg_prob": np.full((B, 4), 0.5, np.float32),
+        "fg_score": np.full(B, 0.7, np.float32), "prim_center": np.asarray(prim_center, np.float32),
+        "prim_size": np.asarray(prim_size, np.float32), "prim_rotation": np.asarray(prim_rotation, np.float32),
+    }
+
+
+def test_merge_mirrored_hand_case():
+    from shape_detector.model.predictor import merge_mirrored
+
+    R45 = rot_z(np.pi / 4)
+    prims = dict(prim_center=[[[0.1, 0.2, 0.0]]] * 3, prim_size=[[[0.5, 0.5, 0.5]]] * 3,
+                 prim_rotation=[[np.eye(3)]] * 2 + [[R45]])
+    # batch of 2 frustums (+ their 2 mirrored copies) -- and a third pair checks rotated primitives
+    arr = _arrays(
+        center=[[0.2, 3.0, 0.1], [0.0, 2.0, 0.0], [0, 2, 0], [-0.4, 3.2, 0.1], [0.0, 2.0, 0.0], [0, 2, 0]],
+        # frustum 0: 0.3 and mirrored 0.5 -> 0.4; frustum 1: 0.3 and 0.5 + pi (opposite front) -> 0.4
+        heading=[0.3, 0.3, 0.0, np.pi - 0.5, np.pi - (0.5 + np.pi), np.pi],
+        size=[[1, 2, 3], [1, 1, 1], [1, 1, 1], [1.2, 2, 2.6], [1, 1, 1], [3, 1, 1]],
+        probs=[[0.8, 0.2], [0.5, 0.5], [0.5, 0.5], [0.6, 0.4], [0.5, 0.5], [0.5, 0.5]],
+        **{k: v * 2 for k, v in prims.items()},
+    )
+    out = merge_mirrored(arr)
+    assert out["center"].shape == (3, 3)
+    np.testing.assert_allclose(out["center"][0], [0.3, 3.1, 0.1], atol=1e-6)  # mirrored x = +0.4
+    np.testing.assert_allclose(out["heading"][:2], [0.4, 0.4], atol=1e-6)
+    np.testing.assert_allclose(out["size"][0], [1.1, 2.0, 2.8], atol=1e-6)
+    np.testing.assert_allclose(out["probs"][0], [0.7, 0.3], atol=1e-6)
+    # primitives: the first prediction's, stretched to the averaged size (x by 1.1, z by 2.8 / 3)
+    np.testing.assert_allclose(out["prim_center"][0, 0], [0.11, 0.2, 0.0], atol=1e-6)
+    np.testing.assert_allclose(out["prim_size"][0, 0], [0.55, 0.5, 0.5 * 2.8 / 3], atol=1e-6)
+    # a primitive at 45 deg in a box stretched 2x along x: both its horizontal axes grow by |(2, 1)| / sqrt 2
+    np.testing.assert_allclose(out["prim_size"][2, 0, :2], [0.5 * np.sqrt(2.5)] * 2, atol=1e-5)
+
+
+def test_mirror_tta_averages_the_two_passes(weights):
+    from shape_detector.model.predictor import merge_mirrored
+
+    frame = make_frame(6, 3)
+    frs = [extract_frustum(frame.rgb, frame.depth, frame.K, o.box2d, 512, up=frame.up,
+                           rng=np.random.default_rng(i)) for i, o in enumerate(frame.objects)]
+    ids = [CLASSES.index(o.class_name) for o in frame.objects]
+    pred = FrustumPredictor(weights, device="cpu", num_threads=1)
+    got = pred.predict(frs, ids, mirror=True)
+    pts = np.stack([f.points for f in frs]).astype(np.float32)
+    flipped = pts.copy()
+    flipped[..., 0] *= -1
+    oh = np.zeros((len(frs), 10), np.float32)
+    oh[np.arange(len(frs)), ids] = 1
+    ref = merge_mirrored(pred.forward_arrays(np.concatenate([pts, flipped]), np.concatenate([oh, oh])))
+    for j, (f, p) in enumerate(zip(frs, got)):
+        np.testing.assert_allclose(p.center, f.R_cf @ ref["center"][j], atol=1e-5)
+        np.testing.assert_allclose(p.size, ref["size"][j], atol=1e-6)
+    plain = pred.predict(frs, ids)
+    assert any(np.linalg.norm(a.center - b.center) > 1e-4 for a, b in zip(plain, got))  # it does something

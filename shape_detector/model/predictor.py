@@ -72,6 +72,36 @@ def resolve_device(device: str | torch.device | None) -> torch.device:
     return torch.device(device)
 
 
+def merge_mirrored(arr: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Average the predictions on B frustums (first half of ``arr``, frame F) with those on the
+    same frustums mirrored x -> -x (second half), as :meth:`FrustumPredictor.forward_arrays`
+    arrays of batch 2B -> batch B.
+
+    The mirrored centre gets its x negated and its heading ``t`` becomes ``pi - t``; centres,
+    sizes, class / segmentation probabilities are averaged, headings too (modulo pi when the
+    two point opposite ways: the first prediction keeps the front). The size cluster and the
+    primitives are the first prediction's, the primitives stretched to the averaged size.
+    """
+    n = arr["center"].shape[0] // 2
+    a = {k: v[:n] for k, v in arr.items()}
+    b = {k: v[n:] for k, v in arr.items()}
+    out = dict(a)
+    cb = b["center"].copy()
+    cb[:, 0] *= -1.0
+    out["center"] = 0.5 * (a["center"] + cb)
+    d = wrap_angle(np.pi - b["heading"] - a["heading"])
+    d = np.where(np.abs(d) > 0.5 * np.pi, wrap_angle(d + np.pi), d)  # opposite fronts: average mod pi
+    out["heading"] = wrap_angle(a["heading"] + 0.5 * d).astype(a["heading"].dtype)
+    out["size"] = 0.5 * (a["size"] + b["size"])
+    for key in ("probs", "seg_prob", "fg_score"):
+        out[key] = 0.5 * (a[key] + b[key])
+    ratio = out["size"] / np.maximum(a["size"], 1e-9)  # (B, 3)
+    out["prim_center"] = a["prim_center"] * ratio[:, None, :]
+    scale = np.linalg.norm(ratio[:, None, :, None] * a["prim_rotation"], axis=2)  # (B, M, 3): per own axis
+    out["prim_size"] = a["prim_size"] * scale
+    return out
+
+
 class FrustumPredictor:
     """Loads weights once; :meth:`predict` runs one batched forward per call.
 
@@ -168,8 +198,15 @@ class FrustumPredictor:
         }
         return {k: v.detach().float().cpu().numpy() for k, v in res.items()}
 
-    def predict(self, frustums: Sequence[Frustum], class_ids: Sequence[int | None] | None = None) -> list[FrustumPrediction]:
-        """Predictions for ``frustums`` (class ids: index into CLASSES, or None = unknown)."""
+    def predict(
+        self, frustums: Sequence[Frustum], class_ids: Sequence[int | None] | None = None, mirror: bool = False
+    ) -> list[FrustumPrediction]:
+        """Predictions for ``frustums`` (class ids: index into CLASSES, or None = unknown).
+
+        ``mirror``: test-time augmentation; each frustum also runs mirrored (x -> -x in frame F,
+        a symmetry the training augments with) in the same batch, and the two predictions are
+        averaged (:func:`merge_mirrored`). Twice the network work.
+        """
         n = len(frustums)
         if class_ids is None:
             class_ids = [None] * n
@@ -189,7 +226,12 @@ class FrustumPredictor:
                 c = class_ids[i]
                 if c is not None:
                     oh[j, int(c)] = 1.0
-            arr = self._forward_parallel(pts, oh)
+            if mirror:
+                flipped = pts.copy()
+                flipped[..., 0] *= -1.0
+                arr = merge_mirrored(self._forward_parallel(np.concatenate([pts, flipped]), np.concatenate([oh, oh])))
+            else:
+                arr = self._forward_parallel(pts, oh)
             for j, i in enumerate(idx):
                 results[i] = self._decode_one(frustums[i], class_ids[i], arr, j)
         return results  # type: ignore[return-value]
