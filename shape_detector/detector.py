@@ -16,7 +16,8 @@ from typing import Any
 import numpy as np
 
 from .classes import CLASS_TO_ID
-from .frustum import backproject, extract_frustum
+from .frustum import backproject, extract_frustum, valid_depth
+from .geometry import upright_rotation
 from .inputs import normalize_inputs
 from .floor import snap_to_floor
 from .nms import nms_3d
@@ -184,8 +185,10 @@ class ShapeDetector:
         parsed = parsed[: self.max_objects]
         t2 = time.perf_counter()
         points_cam = backproject(depth, K) if parsed else None
+        valid = valid_depth(depth) if parsed else None
+        R_cu = upright_rotation(up_used)
         frustums = [
-            extract_frustum(rgb, depth, K, box, self.num_points, up=up_used, points_cam=points_cam)
+            extract_frustum(rgb, depth, K, box, self.num_points, up=up_used, points_cam=points_cam, valid=valid, R_cu=R_cu)
             for box, _, _ in parsed
         ]
         keep = [i for i, f in enumerate(frustums) if f.valid > 0]

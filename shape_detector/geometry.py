@@ -17,6 +17,8 @@ its z axis is up; its rotation in the camera frame is ``R_cu @ rot_z(theta)``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 DEFAULT_UP = np.array([0.0, -1.0, 0.0])
@@ -31,6 +33,9 @@ def normalize(v: np.ndarray, eps: float = 1e-12) -> np.ndarray:
 
 def rot_z(theta: float | np.ndarray) -> np.ndarray:
     """Rotation by ``theta`` radians about +z; shape (3,3) or (...,3,3) for arrays."""
+    if np.ndim(theta) == 0:  # the common scalar case, ~10x faster than the stacking below
+        c, s = math.cos(float(theta)), math.sin(float(theta))
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     t = np.asarray(theta, dtype=np.float64)
     c, s = np.cos(t), np.sin(t)
     z, o = np.zeros_like(t), np.ones_like(t)

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .types import Object3D
+from .types import Cuboid, Object3D
 
 #: fewer segmented points than this: the box is left as the network placed it
 MIN_POINTS = 20
@@ -42,20 +42,32 @@ def grow_to_points(obj: Object3D, points_cam: np.ndarray, quantile: float = 0.15
     p = p[np.all(np.isfinite(p), axis=1) & (p[:, 2] > 0)]
     if len(p) < MIN_POINTS:
         return obj
-    local = (p - obj.center) @ obj.rotation  # box frame: columns of rotation = box axes
-    q_lo, q_hi = np.quantile(local, [quantile, 1.0 - quantile], axis=0)
+    R, c0 = obj.rotation, obj.center
+    local = np.sort((p - c0) @ R, axis=0)  # box frame: columns of rotation = box axes
+    q_lo, q_hi = _sorted_quantile(local, quantile), _sorted_quantile(local, 1.0 - quantile)
     half = 0.5 * obj.size
     lo, hi = np.minimum(-half, q_lo), np.maximum(half, q_hi)
     ratio = (hi - lo) / np.maximum(obj.size, 1e-9)
     mid = 0.5 * (lo + hi)
-    R, c0 = obj.rotation, obj.center
-    # the primitives (predicted in the box frame, in units of its size) stretch with the box
-    obj.primitives = [
-        p.transformed(R.T, -R.T @ c0).stretched(ratio).transformed(R, c0 + R @ mid) for p in obj.primitives
-    ]
+    if obj.primitives:  # predicted in the box frame in units of its size: they stretch with it
+        centers = np.stack([c.center for c in obj.primitives])
+        rots = np.stack([c.rotation for c in obj.primitives])
+        local_c = (centers - c0) @ R
+        scale = np.linalg.norm(ratio[None, :, None] * (R.T @ rots), axis=1)  # per primitive axis
+        new_c = c0 + (mid + ratio * local_c) @ R.T
+        obj.primitives = [Cuboid(c, q.size * s, q.rotation) for c, s, q in zip(new_c, scale, obj.primitives)]
     obj.center = c0 + R @ mid
     obj.size = hi - lo
     return obj
+
+
+def _sorted_quantile(a: np.ndarray, q: float) -> np.ndarray:
+    """Per-column ``q`` quantile of column-sorted ``a`` (n, k), linearly interpolated as
+    numpy's default ``np.quantile``."""
+    pos = q * (len(a) - 1)
+    i = int(np.floor(pos))
+    j = min(i + 1, len(a) - 1)
+    return a[i] + (pos - i) * (a[j] - a[i])
 
 
 def grow_all_to_points(objects: list[Object3D], points_cam: np.ndarray, quantile: float = 0.15) -> list[Object3D]:

@@ -54,14 +54,6 @@ class Cuboid:
         """This cuboid under ``p' = R p + t``."""
         return Cuboid(R @ self.center + t, self.size.copy(), R @ self.rotation)
 
-    def stretched(self, ratio: np.ndarray) -> "Cuboid":
-        """This cuboid (in some box's frame) under the box's stretch ``p' = ratio * p`` per axis:
-        exact for a cuboid aligned with the box axes; otherwise each of its own axes is
-        scaled by the length that axis gets under the stretch."""
-        ratio = np.asarray(ratio, dtype=np.float64).reshape(3)
-        scale = np.linalg.norm(ratio[:, None] * self.rotation, axis=0)
-        return Cuboid(ratio * self.center, self.size * scale, self.rotation.copy())
-
 
 @dataclass
 class Object3D:
