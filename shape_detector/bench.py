@@ -23,6 +23,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=int, default=20, help="frames to time (synth, proposals, pipeline)")
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1, as the detector)")
     p.add_argument("--workers", type=int, default=2, help="threads the network splits a frame's frustums over (default 2, as the detector)")
+    p.add_argument("--max-objects", type=int, default=20, help="pipeline: frustums per frame cap (default 20, as the detector)")
     p.add_argument("--precision", default="fp32", choices=("fp32", "bf16"),
                    help="network arithmetic (bf16: faster on CPUs with AMX / AVX512-BF16)")
     p.add_argument("--weights", default=None, help="weights for network/pipeline/node (default: packaged)")
@@ -31,13 +32,21 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 
 def bench_pipeline(
-    frames: int = 20, weights: str | None = None, threads: int | None = None, workers: int = 2, precision: str = "fp32"
+    frames: int = 20,
+    weights: str | None = None,
+    threads: int | None = None,
+    workers: int = 2,
+    precision: str = "fp32",
+    max_objects: int = 20,
 ) -> dict:
     """Median / p95 ms per VGA frame of ``ShapeDetector.detect`` with GT boxes and with built-in proposals."""
     from .detector import ShapeDetector
     from .synth.generate import generate_frame
 
-    det = ShapeDetector(weights=weights, score_threshold=0.0, num_threads=threads, workers=workers, precision=precision)
+    det = ShapeDetector(
+        weights=weights, score_threshold=0.0, num_threads=threads, workers=workers, precision=precision,
+        max_objects=max_objects,
+    )
     scenes = [generate_frame(10_000 + i) for i in range(frames)]
     out: dict[str, dict] = {}
     for mode in ("gt_boxes", "builtin"):
@@ -84,7 +93,8 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
         return bench_proposals(frames=args.frames)
     if target == "pipeline":
         return bench_pipeline(
-            frames=args.frames, weights=args.weights, threads=args.threads, workers=args.workers, precision=args.precision
+            frames=args.frames, weights=args.weights, threads=args.threads, workers=args.workers,
+            precision=args.precision, max_objects=args.max_objects,
         )
     if target == "node":
         from .node_bench import bench_node
