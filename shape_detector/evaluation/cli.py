@@ -81,6 +81,9 @@ def main(args: argparse.Namespace) -> int:
             print(f"  frame {i + 1}: {dt * 1000:.0f} ms", file=sys.stderr)
 
     use_gt = not args.no_gt_boxes
+    if use_gt and args.class_hypotheses > 1:
+        print("shape-detector evaluate: --class-hypotheses applies to detected boxes (--no-gt-boxes) only; "
+              "with GT boxes the class is given", file=sys.stderr)
     results = evaluate(
         detect_fn,
         _frames(args),
