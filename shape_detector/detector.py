@@ -112,11 +112,11 @@ class ShapeDetector:
         self.last_floor_height: float | None = None
         self.floor_snap = float(floor_snap)
         self.point_fit = float(point_fit)
+        if not 0.0 <= self.point_fit < 0.5:
+            raise ValueError(f"point_fit is a quantile in [0, 0.5), got {point_fit}")
         if mirror_tta not in ("given", "always", "never"):
             raise ValueError(f"mirror_tta must be 'given', 'always' or 'never', got {mirror_tta!r}")
         self.mirror_tta = mirror_tta
-        if not 0.0 <= self.point_fit < 0.5:
-            raise ValueError(f"point_fit is a quantile in [0, 0.5), got {point_fit}")
 
     # -- stages -----------------------------------------------------------------------
     def _get_proposer(self):

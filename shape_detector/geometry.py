@@ -44,6 +44,19 @@ def rot_z(theta: float | np.ndarray) -> np.ndarray:
     )
 
 
+def stretch_cuboids(
+    center: np.ndarray, size: np.ndarray, rotation: np.ndarray, ratio: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cuboids in a box's frame (``center`` (..., 3), ``size`` (..., 3), ``rotation``
+    (..., 3, 3), columns = cuboid axes) under the box's per-axis stretch ``p' = ratio * p``
+    (``ratio`` broadcastable to ``center``): new centres and sizes, rotations unchanged.
+    Exact for cuboids aligned with the box axes; otherwise each cuboid axis is scaled by the
+    length it gets under the stretch."""
+    ratio = np.asarray(ratio, dtype=np.float64)
+    scale = np.linalg.norm(ratio[..., :, None] * rotation, axis=-2)
+    return center * ratio, size * scale
+
+
 def upright_rotation(up: np.ndarray | None) -> np.ndarray:
     """``R_cu`` (3,3): columns are the upright frame's x, y, z axes in camera coordinates.
 

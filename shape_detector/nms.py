@@ -20,17 +20,17 @@ def overlap_ratios(a: Object3D, b: Object3D) -> tuple[float, float]:
 def _prisms(objects: list[Object3D]) -> list[tuple[np.ndarray, float, float, float]] | None:
     """Per box (footprint (4,2) in the upright frame, z min, z max, volume), all boxes
     sharing the first one's vertical; None when some box is not yaw-only about it."""
-    from .evaluation.iou import VERTICAL_TOL, _prism, _vertical_axis
+    from .evaluation.iou import VERTICAL_TOL, box_prism, vertical_axis
     from .geometry import normalize, upright_rotation
 
     up = normalize(np.asarray(objects[0].rotation, np.float64)[:, 2])
     R_cu = upright_rotation(up)
     out = []
     for o in objects:
-        k = _vertical_axis(o.rotation, up, VERTICAL_TOL)
+        k = vertical_axis(o.rotation, up, VERTICAL_TOL)
         if k is None:
             return None
-        foot, z0, z1 = _prism(o.center, o.size, o.rotation, R_cu, k)
+        foot, z0, z1 = box_prism(o.center, o.size, o.rotation, R_cu, k)
         foot = np.ascontiguousarray(foot, dtype=np.float32)
         e1, e2 = foot[1] - foot[0], foot[2] - foot[1]
         if e1[0] * e2[1] - e1[1] * e2[0] < 0:

@@ -50,10 +50,12 @@ def _one_torch_thread(request):
 
 @pytest.fixture(params=["rclpy", "rosbags"])
 def types(request):
-    """msg_conversion's message classes of each flavour: rclpy's and rosbags' (Jazzy store)."""
+    """msg_conversion's message classes of each flavour: rclpy's and rosbags' (Jazzy store).
+    The rclpy flavour is skipped when the module's ``RCLPY_MSGS`` package (default
+    sensor_msgs) is not installed."""
     from msg_conversion.msgtypes import rclpy_types, rosbags_types
 
     if request.param == "rclpy":
-        pytest.importorskip("sensor_msgs.msg")
+        pytest.importorskip(getattr(request.module, "RCLPY_MSGS", "sensor_msgs") + ".msg")
         return rclpy_types()
     return rosbags_types()

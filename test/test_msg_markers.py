@@ -10,7 +10,6 @@ import pytest
 from msg_conversion import (
     objects_to_markers,
     quaternion_to_rotation,
-    rclpy_types,
     rosbags_types,
     rotation_to_quaternion,
     stamp_to_ns,
@@ -20,14 +19,7 @@ from shape_detector.geometry import BOX_EDGES, box_corners, heading_to_rotation
 from shape_detector.types import Cuboid, Object3D
 
 CUBE, LINE_LIST, TEXT_VIEW_FACING, ADD, DELETEALL = 1, 5, 9, 0, 3
-
-
-@pytest.fixture(params=["rclpy", "rosbags"])
-def types(request):
-    if request.param == "rclpy":
-        pytest.importorskip("visualization_msgs.msg")
-        return rclpy_types()
-    return rosbags_types()
+RCLPY_MSGS = "visualization_msgs"  # for conftest's ``types`` fixture
 
 
 def _random_rotation(rng) -> np.ndarray:

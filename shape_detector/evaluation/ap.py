@@ -27,6 +27,7 @@ the classes in ``classes`` that have GT). A class with GT but no detections has 
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -240,8 +241,6 @@ def expand_class_hypotheses(dets: Sequence[Any], k: int, classes: Sequence[str] 
     use on SUN RGB-D: a box may count for its second guess). Detections without
     ``class_scores`` (a per-class probability vector over ``classes``) pass through as they
     are; ``k`` <= 1 returns them unchanged. Copies; the inputs are not modified."""
-    import copy
-
     if k <= 1:
         return list(dets)
     out = []

@@ -114,15 +114,16 @@ def clip_convex(subject: np.ndarray, clip: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------- 3D boxes
-def _vertical_axis(rotation: np.ndarray, up: np.ndarray, tol: float) -> int | None:
+def vertical_axis(rotation: np.ndarray, up: np.ndarray, tol: float) -> int | None:
     """Index of the box axis parallel to ``up``, or None when none is (within ``tol``)."""
     dots = np.abs(np.asarray(rotation, dtype=np.float64).T @ up)
     k = int(np.argmax(dots))
     return k if dots[k] >= 1.0 - tol else None
 
 
-def _prism(center, size, rotation, R_cu: np.ndarray, k: int) -> tuple[np.ndarray, float, float]:
-    """Footprint (4,2) in U's xy plane and the vertical interval [zmin, zmax] of a box."""
+def box_prism(center, size, rotation, R_cu: np.ndarray, k: int) -> tuple[np.ndarray, float, float]:
+    """Footprint (4,2) in the upright frame U's xy plane (``R_cu``: U's axes in the camera frame)
+    and the vertical interval [zmin, zmax] of a box whose axis ``k`` is vertical."""
     c = R_cu.T @ np.asarray(center, dtype=np.float64).reshape(3)
     rot_u = R_cu.T @ np.asarray(rotation, dtype=np.float64).reshape(3, 3)
     s = np.asarray(size, dtype=np.float64).reshape(3)
@@ -180,8 +181,8 @@ def box3d_iou(
     rot_a = np.asarray(rot_a, dtype=np.float64).reshape(3, 3)
     rot_b = np.asarray(rot_b, dtype=np.float64).reshape(3, 3)
     u = normalize(rot_a[:, 2] if up is None else np.asarray(up, dtype=np.float64).reshape(3))
-    ka = _vertical_axis(rot_a, u, vertical_tol)
-    kb = _vertical_axis(rot_b, u, vertical_tol)
+    ka = vertical_axis(rot_a, u, vertical_tol)
+    kb = vertical_axis(rot_b, u, vertical_tol)
     if ka is None or kb is None:
         if not fallback:
             raise ValueError("boxes do not share a vertical axis; exact prism IoU not applicable")
@@ -191,8 +192,8 @@ def box3d_iou(
     if vol_a <= 0.0 or vol_b <= 0.0:
         return 0.0
     R_cu = upright_rotation(u)
-    fa, za0, za1 = _prism(center_a, size_a, rot_a, R_cu, ka)
-    fb, zb0, zb1 = _prism(center_b, size_b, rot_b, R_cu, kb)
+    fa, za0, za1 = box_prism(center_a, size_a, rot_a, R_cu, ka)
+    fb, zb0, zb1 = box_prism(center_b, size_b, rot_b, R_cu, kb)
     dz = min(za1, zb1) - max(za0, zb0)
     if dz <= 0.0:
         return 0.0

@@ -27,7 +27,7 @@ import torch
 
 from ..classes import CLASSES
 from ..frustum import Frustum
-from ..geometry import rot_z, wrap_angle
+from ..geometry import rot_z, stretch_cuboids, wrap_angle
 from ..types import Cuboid
 from .config import ModelConfig
 from .io import default_weights_path, load_weights
@@ -96,9 +96,9 @@ def merge_mirrored(arr: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     for key in ("probs", "seg_prob", "fg_score"):
         out[key] = 0.5 * (a[key] + b[key])
     ratio = out["size"] / np.maximum(a["size"], 1e-9)  # (B, 3)
-    out["prim_center"] = a["prim_center"] * ratio[:, None, :]
-    scale = np.linalg.norm(ratio[:, None, :, None] * a["prim_rotation"], axis=2)  # (B, M, 3): per own axis
-    out["prim_size"] = a["prim_size"] * scale
+    out["prim_center"], out["prim_size"] = stretch_cuboids(
+        a["prim_center"], a["prim_size"], a["prim_rotation"], ratio[:, None, :]
+    )
     return out
 
 
