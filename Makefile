@@ -63,10 +63,10 @@ weights: $(DATA)/train/index.json $(DATA)/val/index.json
 	cp runs/ft3/best.pt shape_detector/weights/default.pt
 
 evaluate: $(DATA)/test/index.json
-	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 150 --min-visible 0.1 --out docs/eval/gt_boxes
-	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 150 --min-visible 0.1 --out docs/eval/builtin --no-gt-boxes --estimate-up --class-hypotheses 2
-	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 150 --out docs/eval/gt_boxes_all
-	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 150 --out docs/eval/builtin_all --no-gt-boxes --estimate-up --class-hypotheses 2
+	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 250 --min-visible 0.1 --out docs/eval/gt_boxes
+	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 250 --min-visible 0.1 --out docs/eval/builtin --no-gt-boxes --estimate-up --class-hypotheses 2
+	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 250 --out docs/eval/gt_boxes_all
+	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 250 --out docs/eval/builtin_all --no-gt-boxes --estimate-up --class-hypotheses 2
 
 ablation: $(DATA)/train/index.json $(DATA)/val/index.json
 	bash scripts/ablation.sh

@@ -15,14 +15,14 @@ def _obj(bottom: float, height: float) -> Object3D:
     R = heading_to_rotation(0.4, UP)
     c = np.array([0.3, 0.0, 3.0])
     c = c - (c @ UP) * UP + (-CAM_HEIGHT + bottom + height / 2) * UP
-    prim = Cuboid(c + 0.1 * R[:, 0], [0.2, 0.2, 0.2], R)
-    return Object3D("dresser", 0.9, c, [0.6, 1.0, height], R, primitives=[prim])
+    top_slab = Cuboid(c + (height / 2 - 0.025) * UP, [0.6, 1.0, 0.05], R)  # flush with the box top
+    leg = Cuboid(c + 0.25 * R[:, 0] - (height / 2 - 0.2) * UP, [0.05, 0.05, 0.4], R)  # on the box bottom
+    return Object3D("dresser", 0.9, c, [0.6, 1.0, height], R, primitives=[top_slab, leg])
 
 
 def test_bottom_near_the_floor_is_put_on_it_keeping_the_top():
     obj = _obj(-0.08, 1.1)  # bottom 8 cm below the floor
     top = obj.center @ UP + 0.55
-    prim0 = obj.primitives[0].center.copy()
     c0 = obj.center.copy()
     (out,) = snap_to_floor([obj], UP, CAM_HEIGHT, max_gap=0.25)
     assert abs(out.center @ UP - out.size[2] / 2 - (-CAM_HEIGHT)) < 1e-9  # bottom on the floor
@@ -30,7 +30,12 @@ def test_bottom_near_the_floor_is_put_on_it_keeping_the_top():
     assert abs(out.size[2] - 1.02) < 1e-9 and np.allclose(out.size[:2], [0.6, 1.0])
     shift = out.center - c0
     assert np.allclose(shift, (shift @ UP) * UP)  # moved along gravity only
-    assert np.allclose(out.primitives[0].center - prim0, shift)
+    # the primitives stretch with the box: the slab stays flush with the top, the leg reaches the floor
+    slab, leg = out.primitives
+    assert abs(slab.center @ UP + slab.size[2] / 2 - top) < 1e-9
+    assert abs(leg.center @ UP - leg.size[2] / 2 - (-CAM_HEIGHT)) < 1e-9
+    assert abs(leg.size[2] - 0.4 * 1.02 / 1.1) < 1e-9 and np.allclose(leg.size[:2], 0.05)
+    assert abs(((leg.center - out.center) @ obj.rotation)[0] - 0.25) < 1e-9  # footprint position kept
 
 
 def test_far_from_the_floor_or_no_floor_is_left_alone():

@@ -37,6 +37,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
                    "(0 = off; default 0.15)")
     p.add_argument("--mirror-tta", default="given", choices=("given", "always", "never"),
                    help="mirrored second pass, averaged: for given boxes (default), always, or never")
+    p.add_argument("--no-snap-primitives", action="store_true",
+                   help="leave primitives as predicted instead of box-aligned and clipped to their box")
     p.add_argument("--class-hypotheses", type=int, default=1,
                    help="also report AP with each detection counted for its top-K classes (VoteNet's "
                    "per-class proposals; detected boxes only; default 1 = off)")
@@ -67,7 +69,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         detector = ShapeDetector(weights=args.weights, device=args.device, score_threshold=args.score_threshold,
                                  floor_snap=args.floor_snap, point_fit=args.point_fit,
-                                 mirror_tta=args.mirror_tta)
+                                 mirror_tta=args.mirror_tta, snap_primitives=not args.no_snap_primitives)
     except FileNotFoundError as e:
         print(f"shape-detector evaluate: {e}", file=sys.stderr)
         return 2
@@ -101,6 +103,7 @@ def main(args: argparse.Namespace) -> int:
             "score_threshold": args.score_threshold,
             "floor_snap_m": args.floor_snap,
             "point_fit_quantile": args.point_fit,
+            "snap_primitives": not args.no_snap_primitives,
             "mirror_tta": args.mirror_tta,
             "up": "estimated" if args.estimate_up else "ground truth",
         }
