@@ -131,3 +131,36 @@ def test_get_proposer_and_evaluate():
     assert res["frames"] == 2 and res["objects"] == 2
     assert res["recall"] == 1.0
     assert res["up_err_median_deg"] < 1.0 and res["proposals_per_frame"] <= 10
+
+
+def test_rank_features_are_the_features_and_their_quadratic_terms():
+    from shape_detector.proposals.geometric import KINDS, _RANK_W, rank_features
+
+    rng = np.random.default_rng(0)
+    F = rng.normal(size=(5, 2 + len(KINDS) + 9))  # bias, kinds, 9 geometry, consensus
+    Q = rank_features(F)
+    g = F[:, 1 + len(KINDS):]
+    assert Q.shape == (5, F.shape[1] + g.shape[1] * (g.shape[1] + 1) // 2) == (5, len(_RANK_W))
+    np.testing.assert_array_equal(Q[:, : F.shape[1]], F)
+    assert Q[2, F.shape[1]] == pytest.approx(g[2, 0] ** 2)  # first product: the first geometry column squared
+    assert Q[2, F.shape[1] + 1] == pytest.approx(g[2, 0] * g[2, 1])
+
+
+def test_fitted_ranker_scores_matching_hypotheses_above_the_rest(touching):
+    from shape_detector.proposals.evaluate import fit_ranker
+    from shape_detector.proposals.geometric import rank_features
+
+    chairs = toy_scene([("chair", chair_parts(-0.4, 2.4)), ("table", [box_part(0.5, 2.6, 1.0, 0.7, 0.75)])],
+                       up=up_from_pitch_roll(15.0), walls=ROOM, seed=2)
+    frames = [touching, chairs]
+    w = fit_ranker(frames, lam=1e-2)
+    assert w.shape == (75,) and np.all(np.isfinite(w))
+    prop = GeometricProposer(GeometricConfig(max_proposals=1))
+    pos, neg = [], []
+    for f in frames:
+        prop(f.depth, f.K)
+        s = rank_features(prop.debug.features) @ w
+        hit = box_iou(prop.debug.candidates, np.array([o.box2d for o in f.objects])).max(axis=1) >= 0.5
+        pos += list(s[hit])
+        neg += list(s[~hit])
+    assert pos and neg and np.mean(pos) > np.mean(neg)

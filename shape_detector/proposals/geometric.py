@@ -203,7 +203,7 @@ class GeometricProposer:
             return []
         # identical boxes (one segment's core == stack, or equal across segmentations):
         # keep the best-ranked hypothesis' features, count the duplicates
-        score0 = feats @ _RANK_W[:-1]
+        score0 = rank_features(np.concatenate([feats, np.zeros((len(feats), 1))], 1)) @ _RANK_W
         bi = np.clip(np.round(boxes), 0, 32767).astype(np.int64)
         key = ((bi[:, 0] * 32768 + bi[:, 1]) * 32768 + bi[:, 2]) * 32768 + bi[:, 3]
         o = np.lexsort((-score0, key))
@@ -217,7 +217,7 @@ class GeometricProposer:
         agree = (iou > cfg.consensus_iou).astype(np.int64) @ dup - 1
         dbg.features = np.concatenate([feats, np.minimum(agree, 8)[:, None] / 8.0], 1)
         dbg.candidates = boxes
-        score = 1.0 / (1.0 + np.exp(-(dbg.features @ _RANK_W)))
+        score = 1.0 / (1.0 + np.exp(-(rank_features(dbg.features) @ _RANK_W)))
         order = np.argsort(-score, kind="stable")
         boxes, score = boxes[order], score[order]
         kinds = [kinds[i] for i in order]
@@ -680,14 +680,33 @@ class GeometricProposer:
 KINDS = ("core", "stack", "group", "blob", "layer", "layer2", "split2", "split3", "split3p")
 _NF = 1 + len(KINDS) + 9  # bias, kind one-hot, geometry (see _features); + consensus in propose
 
-#: logistic ranking weights (objectness of a hypothesis) over ``_features`` + consensus:
-#: bias, kinds (core stack group blob layer layer2 split2 split3 split3p), log points, top,
-#: bottom, max / min footprint extent, log area share, log aspect, border, size-plausible,
-#: consensus. Fitted on 300 generated frames (seeds 50000-50099, 60000-60099, 80000-80099)
-#: with :func:`shape_detector.proposals.evaluate.fit_ranker`.
+def rank_features(F: np.ndarray) -> np.ndarray:
+    """Design matrix of the quadratic logistic ranking: ``F`` (n, _NF + 1: :func:`_features`
+    plus the consensus column) followed by the pairwise products (with squares) of its
+    geometry and consensus columns -- (n, _NF + 1 + 55)."""
+    g = F[:, 1 + len(KINDS):]
+    iu = np.triu_indices(g.shape[1])
+    return np.concatenate([F, (g[:, :, None] * g[:, None, :])[:, iu[0], iu[1]]], 1)
+
+
+#: quadratic logistic ranking weights (objectness of a hypothesis) over
+#: :func:`rank_features`: bias, kinds (core stack group blob layer layer2 split2 split3
+#: split3p), log points, top, bottom, max / min footprint extent, log area share, log
+#: aspect, border, size-plausible, consensus, then their pairwise products. Each object's
+#: matching hypotheses share one unit of weight, so small objects with few hypotheses rank
+#: as well as large ones with many. Fitted on the first 500 training frames with
+#: ``python -m shape_detector.proposals.evaluate --fit-ranker --data data/train --frames 500``.
 _RANK_W = np.array(
-    [-0.858, -0.138, 0.082, 0.198, -0.223, -0.177, -0.001, -0.136, -0.457, -0.008,
-     0.883, -0.236, -1.596, 0.294, 0.718, 2.049, -0.364, -0.256, 1.323, 0.939]
+    [
+        -0.9706, 0.2524, 0.1810, 0.5613, -0.1862, -0.3127, 0.1317, -0.5647, -0.8060, -0.2273,
+        -0.4145, 0.8584, -1.0861, 0.8367, 0.9020, 1.1539, -0.1817, 0.3368, 0.4969, 0.2122, 0.0197,
+        1.0294, -0.4644, 0.5314, 0.3286, 0.9418, -0.0201, -0.2194, 0.9067, 0.3210, -0.8438, -0.6443,
+        -0.7509, -0.3222, -0.9108, 0.3782, -0.1989, 0.2808, -0.1737, -0.6004, 0.0087, 0.0793,
+        0.9935, -0.6488, 0.3883, -0.6172, 0.1728, -0.3287, -0.0036, -0.9469, -0.1433, -0.2021,
+        -0.7712, -0.1274, -0.0064, -1.0677, 0.4925, -0.1107, -0.4951, 0.0797, -1.1877, 0.1703,
+        0.3288, -0.3643, 0.0104, -1.1959, -0.3092, -0.2135, -0.2126, 0.3368, -0.1332, -0.2456,
+        0.4969, 0.3936, -0.1150,
+    ]
 )
 
 
