@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import stretch_cuboids
-from .types import Cuboid, Object3D
+from .types import Object3D
 
 
 def snap_to_floor(
@@ -23,8 +22,8 @@ def snap_to_floor(
     height above the floor (m, the floor plane is ``up . p = -floor_height``), None = no
     floor seen (objects returned unchanged). The box keeps its top face, yaw and footprint;
     its centre moves along ``up`` and its height (``size[2]``, along ``up``) changes;
-    primitives stretch with the box (they are predicted in units of its size, so a part
-    at the box top stays at the top). Objects in place, also returned.
+    primitives stretch with the box (:meth:`Object3D.set_extent`: a part at the box top
+    stays at the top). Objects in place, also returned.
     """
     if floor_height is None or max_gap <= 0.0 or not objects:
         return objects
@@ -37,18 +36,6 @@ def snap_to_floor(
         bottom = c_up - 0.5 * float(obj.size[2])
         if abs(bottom - floor) > max_gap or top - floor < min_height:
             continue
-        shift = 0.5 * (top + floor) - c_up
-        ratio = np.array([1.0, 1.0, (top - floor) / max(float(obj.size[2]), 1e-9)])
-        if obj.primitives:
-            R, c0 = obj.rotation, obj.center
-            local_c, sizes = stretch_cuboids(
-                (np.stack([p.center for p in obj.primitives]) - c0) @ R,
-                np.stack([p.size for p in obj.primitives]),
-                R.T @ np.stack([p.rotation for p in obj.primitives]),
-                ratio,
-            )
-            new_c = c0 + shift * u + local_c @ R.T
-            obj.primitives = [Cuboid(c, s, p.rotation) for c, s, p in zip(new_c, sizes, obj.primitives)]
-        obj.center = obj.center + shift * u
-        obj.size = np.array([obj.size[0], obj.size[1], top - floor])
+        half = 0.5 * obj.size
+        obj.set_extent([-half[0], -half[1], floor - c_up], [half[0], half[1], half[2]])
     return objects

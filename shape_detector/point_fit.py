@@ -17,8 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import stretch_cuboids
-from .types import Cuboid, Object3D
+from .types import Object3D
 
 #: fewer segmented points than this: the box is left as the network placed it
 MIN_POINTS = 20
@@ -31,8 +30,9 @@ def grow_to_points(obj: Object3D, points_cam: np.ndarray, quantile: float = 0.15
     metres, NaN/z <= 0 invalid; ``obj.pixel_index`` (flat ``v * W + u``) and
     ``obj.seg_labels`` (per-point foreground) select the object's points. Along each box
     axis the box's [lo, hi] becomes [min(lo, q), max(hi, q')] with q, q' the ``quantile``
-    and ``1 - quantile`` quantiles of the points; the centre moves accordingly and the
-    primitives stretch with the box. Objects without enough points are returned unchanged.
+    and ``1 - quantile`` quantiles of the points (:meth:`Object3D.set_extent`: the centre
+    moves accordingly and the primitives stretch with the box). Objects without enough
+    points are returned unchanged.
     """
     if obj.pixel_index is None or obj.seg_labels is None or quantile >= 0.5:
         return obj
@@ -47,20 +47,7 @@ def grow_to_points(obj: Object3D, points_cam: np.ndarray, quantile: float = 0.15
     local = np.sort((p - c0) @ R, axis=0)  # box frame: columns of rotation = box axes
     q_lo, q_hi = _sorted_quantile(local, quantile), _sorted_quantile(local, 1.0 - quantile)
     half = 0.5 * obj.size
-    lo, hi = np.minimum(-half, q_lo), np.maximum(half, q_hi)
-    ratio = (hi - lo) / np.maximum(obj.size, 1e-9)
-    mid = 0.5 * (lo + hi)
-    if obj.primitives:  # predicted in the box frame in units of its size: they stretch with it
-        local_c, sizes = stretch_cuboids(
-            (np.stack([c.center for c in obj.primitives]) - c0) @ R,
-            np.stack([c.size for c in obj.primitives]),
-            R.T @ np.stack([c.rotation for c in obj.primitives]),
-            ratio,
-        )
-        new_c = c0 + (mid + local_c) @ R.T
-        obj.primitives = [Cuboid(c, s, q.rotation) for c, s, q in zip(new_c, sizes, obj.primitives)]
-    obj.center = c0 + R @ mid
-    obj.size = hi - lo
+    obj.set_extent(np.minimum(-half, q_lo), np.maximum(half, q_hi))
     return obj
 
 

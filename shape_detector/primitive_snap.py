@@ -67,21 +67,23 @@ def snap_primitives(objects: list[Object3D], max_angle_deg: float = 30.0) -> lis
     """``objects`` with their camera-frame primitives snapped to their boxes (in place, also
     returned), see :func:`snap_in_box`; one vectorised pass over all of a frame's primitives.
     An object none of whose primitives is left inside its box keeps them as predicted."""
-    owners = [i for i, o in enumerate(objects) for _ in o.primitives]
-    if not owners:
+    counts = [len(o.primitives) for o in objects]
+    if not any(counts):
         return objects
     prims = [p for o in objects for p in o.primitives]
-    R = np.stack([objects[i].rotation for i in owners]).astype(np.float64)  # (N,3,3) box axes
-    c0 = np.stack([objects[i].center for i in owners]).astype(np.float64)
+    owner = np.repeat(np.arange(len(objects)), counts)
+    R = np.stack([objects[i].rotation for i in owner])  # (N,3,3): each primitive's box axes
+    c0 = np.stack([objects[i].center for i in owner])
     local_c = np.einsum("ni,nij->nj", np.stack([p.center for p in prims]) - c0, R)
     local_r = np.einsum("nji,njk->nik", R, np.stack([p.rotation for p in prims]))
-    box = np.stack([objects[i].size for i in owners]).astype(np.float64)
+    box = np.stack([objects[i].size for i in owner])
     c, s, r, keep = snap_in_box(local_c, np.stack([p.size for p in prims]), local_r, box, max_angle_deg)
     cam_c = c0 + np.einsum("nij,nj->ni", R, c)
     cam_r = R @ r
-    owners_arr = np.asarray(owners)
-    for i, obj in enumerate(objects):
-        rows = np.flatnonzero(owners_arr == i)
-        if rows.size and keep[rows].any():
+    start = 0
+    for obj, n in zip(objects, counts):
+        rows = np.arange(start, start + n)
+        start += n
+        if n and keep[rows].any():
             obj.primitives = [Cuboid(cam_c[m], s[m], cam_r[m]) for m in rows[keep[rows]]]
     return objects

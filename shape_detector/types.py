@@ -87,6 +87,28 @@ class Object3D:
     def cuboid(self) -> Cuboid:
         return Cuboid(self.center, self.size, self.rotation)
 
+    def set_extent(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        """Make the box span ``[lo, hi]`` (3,) along its own axes (metres, in its current
+        frame: centre at the origin, axes = ``rotation``'s columns), rotation kept. The
+        primitives, which the network predicts in units of the box, stretch with it: a part
+        flush with a box face stays flush with it."""
+        from .geometry import stretch_cuboids
+
+        lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+        R, c0 = self.rotation, self.center
+        mid = 0.5 * (lo + hi)
+        if self.primitives:
+            local_c, sizes = stretch_cuboids(
+                (np.stack([p.center for p in self.primitives]) - c0) @ R,
+                np.stack([p.size for p in self.primitives]),
+                R.T @ np.stack([p.rotation for p in self.primitives]),
+                (hi - lo) / np.maximum(self.size, 1e-9),
+            )
+            new_c = c0 + (mid + local_c) @ R.T
+            self.primitives = [Cuboid(c, s, p.rotation) for c, s, p in zip(new_c, sizes, self.primitives)]
+        self.center = c0 + R @ mid
+        self.size = hi - lo
+
 
 @dataclass
 class GTObject:
