@@ -183,3 +183,35 @@ def test_volume_consistency_zero_inside_and_penalises_empty_space():
             "rotation": torch.eye(3, dtype=torch.float64).view(1, 1, 3, 3)}
     v = float(pr.volume_consistency_loss(blob, pc, ps, prot, mask, per_primitive=2000))
     assert v > 0.01
+
+
+def test_occupancy_iou_loss_matches_the_volume_iou_and_shrinks_air_blocks():
+    cen, siz, rot = _parts()  # a table: top and four legs, z from -0.425 to 0.375
+    pc, ps, prot = (torch.tensor(a, dtype=torch.float64)[None] for a in (cen, siz, rot))
+    mask = torch.ones(1, 5, dtype=torch.bool)
+    box = torch.tensor([[0.8, 1.2, 0.85]], dtype=torch.float64)  # sampling window (x1.3) holds every part
+    g = torch.Generator().manual_seed(0)
+    same = {"center": pc, "size": ps, "rotation": prot}
+    assert float(pr.occupancy_iou_loss(same, pc, ps, prot, mask, box, 20000, temperature=1e-4, generator=g)) < 0.02
+    # the parts' bounding box as one primitive: IoU = parts volume / its volume (hand-computed)
+    whole = {"center": torch.tensor([[[0.0, 0.0, -0.025]]], dtype=torch.float64),
+             "size": torch.tensor([[[0.8, 1.2, 0.8]]], dtype=torch.float64),
+             "rotation": torch.eye(3, dtype=torch.float64).view(1, 1, 3, 3)}
+    vol = float(np.prod(siz, 1).sum())  # the parts do not overlap
+    want = 1.0 - vol / (0.8 * 1.2 * 0.8)
+    got = float(pr.occupancy_iou_loss(whole, pc, ps, prot, mask, box, 50000, temperature=1e-4, generator=g))
+    assert got == pytest.approx(want, abs=0.01)
+    # a primitive reaching out of the box pays for the outside air too
+    big = dict(whole, size=whole["size"] * 1.2)
+    assert float(pr.occupancy_iou_loss(big, pc, ps, prot, mask, box, 50000, temperature=1e-4, generator=g)) > got + 0.01
+    # with the exact top, a block of air between the legs lowers the IoU; its gradient shrinks it
+    size = torch.tensor([[0.5, 0.9, 0.5]], dtype=torch.float64, requires_grad=True)
+    two = {"center": torch.tensor([[[0.0, 0.0, 0.35], [0.0, 0.0, -0.05]]], dtype=torch.float64),
+           "size": torch.cat([ps[:, :1], size.view(1, 1, 3)], 1),
+           "rotation": torch.eye(3, dtype=torch.float64).expand(1, 2, 3, 3)}
+    top = {k: v[:, :1] for k, v in two.items()}
+    with_air = pr.occupancy_iou_loss(two, pc, ps, prot, mask, box, 20000, generator=g)
+    without = pr.occupancy_iou_loss(top, pc, ps, prot, mask, box, 20000, generator=g)
+    assert float(with_air.detach()) > float(without.detach()) + 0.2
+    with_air.sum().backward()
+    assert bool((size.grad > 0).all())

@@ -213,3 +213,32 @@ def test_trainable_prefixes_freeze_the_rest(ds, tmp_path):
     assert changed and all(k.startswith(("shape_mlp", "shape_head")) for k in changed), changed
     with pytest.raises(ValueError, match="no parameter"):
         train(_cfg(epochs=1, trainable=["nothing_here"]), tr, va, tmp_path / "c", seed=4, print_fn=lambda s: None)
+
+
+def test_reinit_starts_modules_fresh_and_may_change_the_primitive_mapping(ds, tmp_path):
+    """reinit=[...]: those modules start from a fresh initialisation (all others from --init);
+    re-initialising the shape head allows another primitive mapping, nothing else may differ."""
+    tr, va = fds.split_by_frame(ds, 0.34, seed=0)
+    train(_cfg(epochs=1, model=dict(SMALL, primitive_param="sigmoid_tanh")), tr, va, tmp_path / "a", seed=3,
+          print_fn=lambda s: None)
+    init = tmp_path / "a" / "weights.pt"
+    logs = []
+    train(_cfg(epochs=1, tasks="shape", model=dict(SMALL, primitive_param="exp_linear"), reinit=["shape_head"],
+               trainable=["shape_mlp", "shape_head"], lr=1e-9), tr, va, tmp_path / "b", seed=4,
+          print_fn=logs.append, init_weights=init)
+    assert any("fresh" in s for s in logs)
+    a, _ = load_weights(init)
+    b, _ = load_weights(tmp_path / "b" / "weights.pt")
+    assert b.config.primitive_param == "exp_linear"
+    sa, sb = a.state_dict(), b.state_dict()
+    fresh = {k for k in sa if k.startswith("shape_head") and not torch.allclose(sa[k].float(), sb[k].float())}
+    assert "shape_head.out.bias" in fresh  # the exp_linear initial bias, not the init's
+    for k in sa:
+        if not k.startswith(("shape_head", "shape_mlp", "cls_temperature")):
+            assert torch.equal(sa[k], sb[k]), k
+    with pytest.raises(ValueError, match="model config"):  # the mapping may only change with a fresh head
+        train(_cfg(epochs=1, model=dict(SMALL, primitive_param="exp_linear")), tr, va, tmp_path / "c", seed=4,
+              print_fn=lambda s: None, init_weights=init)
+    with pytest.raises(ValueError, match="no parameter"):
+        train(_cfg(epochs=1, model=dict(SMALL, primitive_param="sigmoid_tanh"), reinit=["nothing_here"]), tr, va,
+              tmp_path / "d", seed=4, print_fn=lambda s: None, init_weights=init)

@@ -11,10 +11,11 @@ box errors). Task flags select the groups:
 * ``shape``: coverage (sum of the ``l`` smallest squared distances of GT surface samples to
   the primitives) and consistency (area-weighted squared distance of reparametrised
   primitive-surface samples to the union of GT parts) -- positives with shape GT only;
-  plus two auxiliary terms (weight 0 = thesis-only losses): the supervised matched-part
+  plus three auxiliary terms (weight 0 = thesis-only losses): the supervised matched-part
   loss (``part``, :func:`shape_detector.model.primitives.matched_part_loss`) and the
   volumetric consistency (``volume``, points sampled inside the primitives,
-  :func:`shape_detector.model.primitives.volume_consistency_loss`);
+  :func:`shape_detector.model.primitives.volume_consistency_loss`); and a soft volumetric
+  IoU (``occupancy``, :func:`shape_detector.model.primitives.occupancy_iou_loss`, default 0);
 * ``cls``: cross-entropy of the classification head (classes + background), all frustums.
 
 ``batch`` keys (torch tensors, B = batch): ``seg`` (B,N) long, ``cls_label`` (B,) long
@@ -34,7 +35,14 @@ import torch
 import torch.nn.functional as F
 
 from .box_coder import box_corners_torch, decode_heading, decode_size, encode_heading, encode_size, gather_bin
-from .primitives import consistency_loss, coverage_loss, matched_part_loss, primitive_params, volume_consistency_loss
+from .primitives import (
+    consistency_loss,
+    coverage_loss,
+    matched_part_loss,
+    occupancy_iou_loss,
+    primitive_params,
+    volume_consistency_loss,
+)
 
 
 @dataclass
@@ -51,6 +59,7 @@ class LossWeights:
     consistency: float = 30.0
     part: float = 30.0
     volume: float = 30.0
+    occupancy: float = 0.0
     cls: float = 1.0
 
     @classmethod
@@ -185,6 +194,12 @@ def compute_losses(
                     batch["parts_mask"][idx].bool(), scale=scale,
                 )
                 losses["volume"] = w.volume * vol.mean()
+            if w.occupancy > 0:
+                occ = occupancy_iou_loss(
+                    prims, batch["parts_center"][idx], batch["parts_size"][idx], batch["parts_rotation"][idx],
+                    batch["parts_mask"][idx].bool(), gsize,
+                )
+                losses["occupancy"] = w.occupancy * occ.mean()
 
     if "cls" in tasks:
         cl = batch["cls_label"].long()

@@ -79,6 +79,9 @@ class TrainConfig:
     shape_iou_samples: int = 2048
     log_every: int = 25
     trainable: list[str] | None = None  # module-name prefixes to train (None = all); the rest frozen, BN in eval
+    # module-name prefixes that start from a fresh initialisation instead of the --init weights
+    # (re-initialising "shape_head" also allows a different primitive mapping than the init's)
+    reinit: list[str] | None = None
     num_threads: int = 1  # 2 only on an idle machine: oversubscribed OpenMP threads are ~20x slower
 
     @classmethod
@@ -484,7 +487,7 @@ def plot_curves(history: dict[str, Any], path: str | Path) -> None:
                         0.38, col, 1, cv2.LINE_AA)
 
     steps = history.get("steps", [])
-    keys = ["total", "seg", "center", "corner", "heading_cls", "size_res", "coverage", "consistency", "part", "volume", "cls"]
+    keys = ["total", "seg", "center", "corner", "heading_cls", "size_res", "coverage", "consistency", "part", "volume", "occupancy", "cls"]
     series = []
     for k in keys:
         xs = [r["step"] for r in steps if k in r]
@@ -532,6 +535,32 @@ def _write_logs(out_dir: Path, history: dict[str, Any], meta: dict[str, Any]) ->
 def _fmt_eta(sec: float) -> str:
     sec = max(0, int(sec))
     return f"{sec // 3600:d}:{sec % 3600 // 60:02d}:{sec % 60:02d}"
+
+
+_SHAPE_MAPPING_KEYS = ("primitive_param", "primitive_min_size_frac")
+
+
+def _load_init(model: FrustumShapeNet, init_model: FrustumShapeNet, reinit: list[str] | None) -> None:
+    """Copy ``init_model``'s parameters into ``model`` except those under the ``reinit``
+    module-name prefixes, which keep their fresh initialisation. The model configs must be
+    equal, except the primitive mapping when the shape head is re-initialised."""
+    prefixes = tuple(reinit or ())
+    a, b = model.config.to_dict(), init_model.config.to_dict()
+    if any("shape_head".startswith(p) for p in prefixes):
+        for k in _SHAPE_MAPPING_KEYS:
+            a.pop(k), b.pop(k)
+    if a != b:
+        raise ValueError("--init: its model config differs from the training config's")
+
+    def fresh(key: str) -> bool:
+        return bool(prefixes) and key.startswith(prefixes)
+
+    state = {k: v for k, v in init_model.state_dict().items() if not fresh(k)}
+    missing, unexpected = model.load_state_dict(state, strict=False)
+    if unexpected or not all(fresh(k) for k in missing):
+        raise ValueError(f"--init: parameters do not match (missing {missing}, unexpected {unexpected})")
+    if prefixes and not missing:
+        raise ValueError(f"reinit={list(prefixes)}: no parameter matches")
 
 
 def _freeze(model: torch.nn.Module, trainable: list[str] | None) -> list[torch.nn.Module]:
@@ -583,10 +612,8 @@ def train(
     ck_path = out_dir / "checkpoint.pt"
     if init_weights is not None and not (resume and ck_path.is_file()):
         init_model, _ = load_weights(init_weights, device)
-        if init_model.config.to_dict() != mcfg.to_dict():
-            raise ValueError(f"--init {init_weights}: its model config differs from the training config's")
-        model.load_state_dict(init_model.state_dict())
-        print_fn(f"initialised from {init_weights}")
+        _load_init(model, init_model, cfg.reinit)
+        print_fn(f"initialised from {init_weights}" + (f" except {cfg.reinit} (fresh)" if cfg.reinit else ""))
     frozen = _freeze(model, cfg.trainable)
     if frozen:
         print_fn(f"training only {cfg.trainable}: {len(frozen)} modules frozen")
