@@ -12,9 +12,9 @@ box errors). Task flags select the groups:
   the primitives) and consistency (area-weighted squared distance of reparametrised
   primitive-surface samples to the union of GT parts) -- positives with shape GT only;
   plus three auxiliary terms (weight 0 = thesis-only losses): the supervised matched-part
-  loss (``part``, :func:`shape_detector.model.primitives.matched_part_loss`) and the
+  loss (``part``, :func:`shape_detector.model.primitives.matched_part_loss`), the
   volumetric consistency (``volume``, points sampled inside the primitives,
-  :func:`shape_detector.model.primitives.volume_consistency_loss`); and a soft volumetric
+  :func:`shape_detector.model.primitives.volume_consistency_loss`) and a soft volumetric
   IoU (``occupancy``, :func:`shape_detector.model.primitives.occupancy_iou_loss`, default 0);
 * ``cls``: cross-entropy of the classification head (classes + background), all frustums.
 
@@ -170,36 +170,19 @@ def compute_losses(
             gsize = batch["size"][idx]
             prims = primitive_params(raw, gsize, min_size_frac, primitive_mode)
             scale = gsize.norm(dim=1)
+            # GT parts (canonical frame): centre, size, rotation, validity mask
+            parts = (batch["parts_center"][idx], batch["parts_size"][idx], batch["parts_rotation"][idx],
+                     batch["parts_mask"][idx].bool())
             cov = coverage_loss(batch["surface"][idx], prims, l_nearest, scale)
-            con = consistency_loss(
-                prims,
-                batch["parts_center"][idx],
-                batch["parts_size"][idx],
-                batch["parts_rotation"][idx],
-                batch["parts_mask"][idx].bool(),
-                per_face=consistency_per_face,
-                scale=scale,
-            )
+            con = consistency_loss(prims, *parts, per_face=consistency_per_face, scale=scale)
             losses["coverage"] = w.coverage * cov.mean()
             losses["consistency"] = w.consistency * con.mean()
             if w.part > 0:
-                part = matched_part_loss(
-                    prims, batch["parts_center"][idx], batch["parts_size"][idx], batch["parts_rotation"][idx],
-                    batch["parts_mask"][idx].bool(), scale=scale,
-                )
-                losses["part"] = w.part * part.mean()
+                losses["part"] = w.part * matched_part_loss(prims, *parts, scale=scale).mean()
             if w.volume > 0:
-                vol = volume_consistency_loss(
-                    prims, batch["parts_center"][idx], batch["parts_size"][idx], batch["parts_rotation"][idx],
-                    batch["parts_mask"][idx].bool(), scale=scale,
-                )
-                losses["volume"] = w.volume * vol.mean()
+                losses["volume"] = w.volume * volume_consistency_loss(prims, *parts, scale=scale).mean()
             if w.occupancy > 0:
-                occ = occupancy_iou_loss(
-                    prims, batch["parts_center"][idx], batch["parts_size"][idx], batch["parts_rotation"][idx],
-                    batch["parts_mask"][idx].bool(), gsize,
-                )
-                losses["occupancy"] = w.occupancy * occ.mean()
+                losses["occupancy"] = w.occupancy * occupancy_iou_loss(prims, *parts, gsize).mean()
 
     if "cls" in tasks:
         cl = batch["cls_label"].long()
