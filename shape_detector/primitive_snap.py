@@ -71,12 +71,13 @@ def snap_primitives(objects: list[Object3D], max_angle_deg: float = 30.0) -> lis
     if not any(counts):
         return objects
     prims = [p for o in objects for p in o.primitives]
-    owner = np.repeat(np.arange(len(objects)), counts)
-    R = np.stack([objects[i].rotation for i in owner])  # (N,3,3): each primitive's box axes
-    c0 = np.stack([objects[i].center for i in owner])
+
+    def per_primitive(key: str) -> np.ndarray:  # each primitive's row of its object's box
+        return np.repeat(np.stack([getattr(o, key) for o in objects]), counts, axis=0)
+
+    R, c0, box = per_primitive("rotation"), per_primitive("center"), per_primitive("size")  # box axes (N,3,3)
     local_c = np.einsum("ni,nij->nj", np.stack([p.center for p in prims]) - c0, R)
     local_r = np.einsum("nji,njk->nik", R, np.stack([p.rotation for p in prims]))
-    box = np.stack([objects[i].size for i in owner])
     c, s, r, keep = snap_in_box(local_c, np.stack([p.size for p in prims]), local_r, box, max_angle_deg)
     cam_c = c0 + np.einsum("nij,nj->ni", R, c)
     cam_r = R @ r

@@ -85,17 +85,26 @@ def primitive_params(
 # ------------------------------------------------------------------------- distances
 
 
-def point_cuboid_sqdist(
+def cuboid_excess(
     points: torch.Tensor, center: torch.Tensor, size: torch.Tensor, rotation: torch.Tensor
 ) -> torch.Tensor:
-    """Squared Euclidean distance (B, P, K) from points (B, P, 3) to solid cuboids.
+    """Per-axis excess (B, P, K, 3) of points (B, P, 3) over solid cuboids: |local
+    coordinate| minus half the size along each cuboid axis (<= 0 on every axis inside).
 
     Cuboids: ``center`` (B,K,3), full ``size`` (B,K,3), ``rotation`` (B,K,3,3) with
-    columns = cuboid axes. Zero inside; nearest face / edge / corner outside.
+    columns = cuboid axes.
     """
     d = points.unsqueeze(2) - center.unsqueeze(1)  # (B,P,K,3)
     local = torch.einsum("bpki,bkij->bpkj", d, rotation)
-    excess = (local.abs() - 0.5 * size.unsqueeze(1)).clamp_min(0.0)
+    return local.abs() - 0.5 * size.unsqueeze(1)
+
+
+def point_cuboid_sqdist(
+    points: torch.Tensor, center: torch.Tensor, size: torch.Tensor, rotation: torch.Tensor
+) -> torch.Tensor:
+    """Squared Euclidean distance (B, P, K) from points (B, P, 3) to solid cuboids (see
+    :func:`cuboid_excess`). Zero inside; nearest face / edge / corner outside."""
+    excess = cuboid_excess(points, center, size, rotation).clamp_min(0.0)
     return (excess * excess).sum(-1)
 
 
@@ -103,9 +112,7 @@ def points_in_cuboids(
     points: torch.Tensor, center: torch.Tensor, size: torch.Tensor, rotation: torch.Tensor
 ) -> torch.Tensor:
     """Bool (B, P, K): point inside cuboid (boundary included)."""
-    d = points.unsqueeze(2) - center.unsqueeze(1)
-    local = torch.einsum("bpki,bkij->bpkj", d, rotation)
-    return (local.abs() <= 0.5 * size.unsqueeze(1)).all(-1)
+    return (cuboid_excess(points, center, size, rotation) <= 0).all(-1)
 
 
 # -------------------------------------------------------------------------- sampling
@@ -322,9 +329,7 @@ def occupancy_iou_loss(
         if part_mask is not None:
             inside = inside & part_mask.unsqueeze(1)
         g = inside.any(-1).to(x.dtype)  # (B,P)
-    d = x.unsqueeze(2) - prims["center"].unsqueeze(1)
-    local = torch.einsum("bpki,bkij->bpkj", d, prims["rotation"])
-    depth = (0.5 * prims["size"].unsqueeze(1) - local.abs()).amin(-1)  # (B,P,M)
+    depth = -cuboid_excess(x, prims["center"], prims["size"], prims["rotation"]).amax(-1)  # (B,P,M)
     tau = (temperature * box_size.norm(dim=1)).clamp_min(1e-6).view(B, 1, 1)
     p = torch.sigmoid(depth / tau).amax(-1)
     inter = (p * g).sum(1)
