@@ -51,7 +51,8 @@ class ShapeDetector:
     class-agnostic 3D-geometry proposals) or 'none' (then ``detect`` needs ``boxes2d``).
     ``score_threshold`` drops low-confidence objects; ``max_objects`` caps frustums per
     frame (highest-score proposals first); ``nms_iou`` is the 3D IoU above which the
-    lower-scoring of two detections is suppressed. ``num_threads``: torch CPU threads for
+    lower-scoring of two detections is suppressed, or with ``nms_decay`` > 0 kept at that
+    fraction of its score (Soft-NMS; see :func:`~shape_detector.nms.nms_3d`). ``num_threads``: torch CPU threads for
     the network (default 1: a frame's batch is small, and on a loaded 2-core machine torch's
     intra-op threads wait on each other; measured 46 ms for 10 frustums with 1 thread against
     496 ms with 2 here; None keeps torch's setting). The setting is process-wide (torch).
@@ -82,6 +83,7 @@ class ShapeDetector:
         max_objects: int = 20,
         proposals: str = "geometric",
         nms_iou: float = 0.25,
+        nms_decay: float = 0.1,
         num_threads: int | None = 1,
         workers: int = 2,
         floor_snap: float = 0.25,
@@ -106,6 +108,7 @@ class ShapeDetector:
         self.score_threshold = float(score_threshold)
         self.max_objects = int(max_objects)
         self.nms_iou = float(nms_iou)
+        self.nms_decay = float(nms_decay)
         self.proposal_source = proposals
         self._proposer = None
         if proposals not in ("geometric", "none"):
@@ -226,7 +229,8 @@ class ShapeDetector:
             objects = grow_all_to_points(objects, points_cam, self.point_fit)
         objects = snap_to_floor(objects, up_used, floor_height, self.floor_snap)
         if boxes2d is None:  # built-in proposals overlap by design; given boxes are one per object
-            objects = nms_3d(objects, self.nms_iou)
+            objects = nms_3d(objects, self.nms_iou, decay=self.nms_decay)
+            objects = [o for o in objects if o.score >= self.score_threshold]
         if self.snap_primitives:
             objects = snap_primitives(objects)
         objects.sort(key=lambda o: -o.score)

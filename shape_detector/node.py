@@ -47,6 +47,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                         {"floating_point_range": [FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)]}),
     "max_objects": (20, "maximum objects per frame", False,
                     {"integer_range": [IntegerRange(from_value=1, to_value=1000, step=1)]}),
+    "nms_decay": (0.1, "built-in proposals: score factor of the boxes 3D NMS suppresses, kept after the others "
+                  "(0 = drop them; with score_threshold 0.3 none is published)", False,
+                  {"floating_point_range": [FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)]}),
     "workers": (2, "threads the network splits a frame's frustums over (single-threaded ops each; 1 = serial)", True,
                 {"integer_range": [IntegerRange(from_value=1, to_value=64, step=1)]}),
     "precision": ("fp32", "network arithmetic: 'fp32' or 'bf16' (about 2x faster with many frustums on CPUs "
@@ -231,6 +234,8 @@ class DetectorNode(Node):
             factory = ShapeDetector
         t = time.perf_counter()
         det = factory(**kwargs)
+        if hasattr(det, "nms_decay"):  # not a constructor argument: custom factories need not take it
+            det.nms_decay = float(self.p["nms_decay"])
         if hasattr(det, "warm_up"):  # first-call costs now, not on the first camera frame
             try:
                 det.warm_up()
@@ -268,7 +273,7 @@ class DetectorNode(Node):
                 self.p[prm.name] = prm.value
                 if prm.name in ("sync_slop", "sync_queue_size"):
                     self.sync.configure(queue_size=self.p["sync_queue_size"], slop=self.p["sync_slop"])
-                elif prm.name in ("score_threshold", "max_objects"):
+                elif prm.name in ("score_threshold", "max_objects", "nms_decay"):
                     if hasattr(self.detector, prm.name):
                         setattr(self.detector, prm.name, prm.value)
                     else:

@@ -55,3 +55,34 @@ def test_prism_overlaps_match_the_exact_iou():
     tilted = Object3D("chair", 0.4, np.array([0, 0, 3.0]), np.ones(3), heading_to_rotation(0.2, np.array([0, -1.0, 0.3])))
     assert _prisms(objs + [tilted]) is None
     assert len(nms_3d(objs + [tilted], 0.25)) >= 1
+
+
+def test_decay_keeps_suppressed_boxes_at_a_fraction_of_their_score():
+    objs = [
+        _obj(0.6, [0.05, 0, 3.0]),  # duplicate of the best one
+        _obj(0.9, [0, 0, 3.0]),
+        _obj(0.7, [0, 0, 3.0], (0.4, 0.4, 0.4), "table"),  # nested inside it
+        _obj(0.8, [2.0, 0, 3.0]),
+        _obj(0.5, [2.02, 0, 3.0]),  # duplicate of the separate object
+    ]
+    objs[0].class_scores = np.array([0.6, 0.3])
+    out = nms_3d(objs, 0.25, decay=0.1)
+    np.testing.assert_allclose(out[3].class_scores, [0.06, 0.03])  # per-class confidences decay too
+    np.testing.assert_allclose(objs[0].class_scores, [0.6, 0.3])
+    assert [round(o.score, 6) for o in out] == [0.9, 0.8, 0.07, 0.06, 0.05]  # kept first, then by old score
+    assert [o.class_name for o in out][2] == "table"
+    assert sorted(o.score for o in objs) == [0.5, 0.6, 0.7, 0.8, 0.9]  # inputs untouched (copies)
+    assert out[:2] == nms_3d(objs, 0.25)  # the kept set is the hard NMS result
+
+
+def test_suppressed_boxes_suppress_nothing():
+    """A box suppressed by the best one must not in turn suppress a third box that only
+    it overlaps: hard NMS keeps that third box, and so does the decayed variant."""
+    a = _obj(0.9, [0, 0, 3.0])
+    b = _obj(0.8, np.array([0, 0, 3.0]) + R[:, 0] * 0.5)  # IoU 1/3 with a -> suppressed
+    c = _obj(0.7, np.array([0, 0, 3.0]) + R[:, 0] * 1.0)  # touches a, IoU 1/3 with b
+    assert overlap_ratios(b, c)[0] > 0.25 and overlap_ratios(a, c)[0] == 0.0
+    hard = nms_3d([a, b, c], 0.25)
+    soft = nms_3d([a, b, c], 0.25, decay=0.2)
+    assert hard == [a, c] and soft[:2] == [a, c]
+    assert len(soft) == 3 and soft[2].score == 0.8 * 0.2

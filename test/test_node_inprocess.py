@@ -32,6 +32,7 @@ class FakeDetector:
         self.calls = []
         self.score_threshold = 0.3
         self.max_objects = 20
+        self.nms_decay = 0.1
 
     def detect(self, rgb, depth, K, boxes2d=None, up=None):
         self.calls.append({"shape": rgb.shape, "up": up, "t": time.monotonic()})
@@ -177,6 +178,8 @@ def test_parameters_dynamic_and_validated(harness):
     assert desc[0].description and not desc[0].read_only and desc[1].read_only
     res = n.set_parameters([Parameter("score_threshold", value=0.55), Parameter("max_objects", value=3)])
     assert all(r.successful for r in res) and det.score_threshold == 0.55 and det.max_objects == 3
+    assert n.set_parameters([Parameter("nms_decay", value=0.0)])[0].successful and det.nms_decay == 0.0
+    assert not n.set_parameters([Parameter("nms_decay", value=1.5)])[0].successful  # out of range
     res = n.set_parameters([Parameter("sync_slop", value=0.001), Parameter("sync_queue_size", value=4)])
     assert all(r.successful for r in res) and n.sync.slop_ns == MS and n.sync.queue_size == 4
     assert not n.set_parameters([Parameter("up_source", value="gyro")])[0].successful

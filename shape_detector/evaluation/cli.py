@@ -39,6 +39,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
                    help="mirrored second pass, averaged: for given boxes (default), always, or never")
     p.add_argument("--no-snap-primitives", action="store_true",
                    help="leave primitives as predicted instead of box-aligned and clipped to their box")
+    p.add_argument("--nms-decay", type=float, default=0.1,
+                   help="built-in proposals: keep boxes 3D NMS suppresses at this fraction of their score "
+                   "(Soft-NMS; 0 = drop them; default 0.1)")
     p.add_argument("--class-hypotheses", type=int, default=1,
                    help="also report AP with each detection counted for its top-K classes (VoteNet's "
                    "per-class proposals; detected boxes only; default 1 = off)")
@@ -69,7 +72,8 @@ def main(args: argparse.Namespace) -> int:
     try:
         detector = ShapeDetector(weights=args.weights, device=args.device, score_threshold=args.score_threshold,
                                  floor_snap=args.floor_snap, point_fit=args.point_fit,
-                                 mirror_tta=args.mirror_tta, snap_primitives=not args.no_snap_primitives)
+                                 mirror_tta=args.mirror_tta, snap_primitives=not args.no_snap_primitives,
+                                 nms_decay=args.nms_decay)
     except FileNotFoundError as e:
         print(f"shape-detector evaluate: {e}", file=sys.stderr)
         return 2
@@ -105,6 +109,7 @@ def main(args: argparse.Namespace) -> int:
             "point_fit_quantile": args.point_fit,
             "snap_primitives": not args.no_snap_primitives,
             "mirror_tta": args.mirror_tta,
+            "nms_decay": args.nms_decay,
             "up": "estimated" if args.estimate_up else "ground truth",
         }
     )
