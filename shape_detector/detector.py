@@ -52,10 +52,10 @@ class ShapeDetector:
     ``score_threshold`` drops low-confidence objects; ``max_objects`` caps frustums per
     frame (highest-score proposals first); ``nms_iou`` is the 3D IoU above which the
     lower-scoring of two detections is suppressed, or with ``nms_decay`` > 0 kept at that
-    fraction of its score (Soft-NMS; see :func:`~shape_detector.nms.nms_3d`). ``num_threads``: torch CPU threads for
-    the network (default 1: a frame's batch is small, and on a loaded 2-core machine torch's
-    intra-op threads wait on each other; measured 46 ms for 10 frustums with 1 thread against
-    496 ms with 2 here; None keeps torch's setting). The setting is process-wide (torch).
+    fraction of its score (Soft-NMS; see :func:`~shape_detector.nms.nms_3d`).
+    ``num_threads``: torch CPU threads for the network (default 1: a frame's batch is small,
+    and on a loaded 2-core machine torch's intra-op threads wait on each other; measured 46
+    ms for 10 frustums with 1 thread against 496 ms with 2 here; None keeps torch's setting). The setting is process-wide (torch).
     ``workers``: split a frame's frustums over this many threads, each running single-threaded
     ops (data parallelism without OpenMP's barrier waits): 10 frustums took 34 ms with 2
     against 60 ms with 1 on an idle 2-core CPU, and the same (56 vs 52-59 ms) with the

@@ -64,10 +64,10 @@ def nms_3d(
     smaller volume above ``containment_threshold``).
 
     ``decay`` > 0 keeps the suppressed objects instead, as copies with their ``score`` and
-    ``class_scores`` times ``decay``, after the kept ones (a fixed-factor Soft-NMS, Bodla et al. 2017): a touching
-    neighbour that lost to a merged box still counts at low confidence, while the score
-    threshold of a live node (0.3 against scores <= ``decay``) still drops every duplicate.
-    Suppressed objects suppress nothing.
+    ``class_scores`` times ``decay``, after the kept ones (a fixed-factor Soft-NMS, Bodla et
+    al. 2017): a touching neighbour that lost to a merged box still counts at low
+    confidence, while the score threshold of a live node (0.3 against scores <= ``decay``)
+    still drops every duplicate. Suppressed objects suppress nothing.
 
     Class-agnostic: two pieces of furniture do not share space, so overlapping boxes of
     different classes are duplicates of one object from different proposals (a part of
