@@ -55,7 +55,8 @@ class ShapeDetector:
     fraction of its score (Soft-NMS; see :func:`~shape_detector.nms.nms_3d`).
     ``num_threads``: torch CPU threads for the network (default 1: a frame's batch is small,
     and on a loaded 2-core machine torch's intra-op threads wait on each other; measured 46
-    ms for 10 frustums with 1 thread against 496 ms with 2 here; None keeps torch's setting). The setting is process-wide (torch).
+    ms for 10 frustums with 1 thread against 496 ms with 2 here; None keeps torch's setting).
+    The setting is process-wide (torch).
     ``workers``: split a frame's frustums over this many threads, each running single-threaded
     ops (data parallelism without OpenMP's barrier waits): 10 frustums took 34 ms with 2
     against 60 ms with 1 on an idle 2-core CPU, and the same (56 vs 52-59 ms) with the
@@ -229,8 +230,7 @@ class ShapeDetector:
             objects = grow_all_to_points(objects, points_cam, self.point_fit)
         objects = snap_to_floor(objects, up_used, floor_height, self.floor_snap)
         if boxes2d is None:  # built-in proposals overlap by design; given boxes are one per object
-            objects = nms_3d(objects, self.nms_iou, decay=self.nms_decay)
-            objects = [o for o in objects if o.score >= self.score_threshold]
+            objects = nms_3d(objects, self.nms_iou, decay=self.nms_decay, min_score=self.score_threshold)
         if self.snap_primitives:
             objects = snap_primitives(objects)
         objects.sort(key=lambda o: -o.score)

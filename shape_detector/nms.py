@@ -57,7 +57,11 @@ def _prism_overlap(a, b) -> tuple[float, float]:
 
 
 def nms_3d(
-    objects: list[Object3D], iou_threshold: float = 0.25, containment_threshold: float = 0.7, decay: float = 0.0
+    objects: list[Object3D],
+    iou_threshold: float = 0.25,
+    containment_threshold: float = 0.7,
+    decay: float = 0.0,
+    min_score: float = 0.0,
 ) -> list[Object3D]:
     """Objects sorted by score, dropping any that overlaps a kept one by more than
     ``iou_threshold`` (3D IoU) or lies mostly inside it / around it (intersection over the
@@ -67,7 +71,8 @@ def nms_3d(
     ``class_scores`` times ``decay``, after the kept ones (a fixed-factor Soft-NMS, Bodla et
     al. 2017): a touching neighbour that lost to a merged box still counts at low
     confidence, while the score threshold of a live node (0.3 against scores <= ``decay``)
-    still drops every duplicate. Suppressed objects suppress nothing.
+    still drops every duplicate. Suppressed objects suppress nothing; those whose decayed
+    score falls below ``min_score`` (the caller's score threshold) are not copied at all.
 
     Class-agnostic: two pieces of furniture do not share space, so overlapping boxes of
     different classes are duplicates of one object from different proposals (a part of
@@ -96,7 +101,7 @@ def nms_3d(
             for iou, contained in (overlap(i, k) for k in kept if near[i, k])
         ):
             kept.append(i)
-        elif decay > 0.0:
+        elif decay > 0.0 and ordered[i].score * decay >= min_score:
             o = copy.copy(ordered[i])
             o.score = float(o.score) * decay
             if o.class_scores is not None:

@@ -73,6 +73,8 @@ def test_decay_keeps_suppressed_boxes_at_a_fraction_of_their_score():
     assert [o.class_name for o in out][2] == "table"
     assert sorted(o.score for o in objs) == [0.5, 0.6, 0.7, 0.8, 0.9]  # inputs untouched (copies)
     assert out[:2] == nms_3d(objs, 0.25)  # the kept set is the hard NMS result
+    # a score threshold above a decayed score: that copy is never made
+    assert [round(o.score, 6) for o in nms_3d(objs, 0.25, decay=0.1, min_score=0.06)] == [0.9, 0.8, 0.07, 0.06]
 
 
 def test_suppressed_boxes_suppress_nothing():
