@@ -8,15 +8,17 @@ All outputs are in the camera optical frame (x right, y down, z forward), metres
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .classes import CLASS_TO_ID
-from .frustum import backproject, extract_frustum, valid_depth
+from .frustum import Frustum, extract_frustum, pixel_points, valid_depth
 from .geometry import upright_rotation
 from .inputs import normalize_inputs
 from .floor import snap_to_floor
@@ -26,6 +28,29 @@ from .primitive_snap import snap_primitives
 from .types import Object3D
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "default.pt"
+
+
+@dataclass
+class PreparedFrame:
+    """A frame after :meth:`ShapeDetector.prepare`: what :meth:`ShapeDetector.finish` needs.
+
+    ``depth`` HxW float32 metres and ``K`` (3,3) as normalised; ``up`` (3,) the gravity-up
+    used (given or estimated, camera frame) with its ``up_confidence``; ``floor_height``
+    the camera's height above the floor (m, None: not measured); ``boxes`` the
+    ``(box2d, class_name or None, proposal score)`` of the frustums kept (those with valid
+    depth), ``frustums`` their points; ``given_boxes``: the boxes came from the caller;
+    ``timing`` the stages' milliseconds so far.
+    """
+
+    depth: np.ndarray
+    K: np.ndarray
+    up: np.ndarray
+    up_confidence: float
+    floor_height: float | None
+    boxes: list[tuple[tuple[float, float, float, float], str | None, float]]
+    frustums: list[Frustum]
+    given_boxes: bool
+    timing: dict[str, float] = field(default_factory=dict)
 
 
 def _parse_box(box: Any) -> tuple[tuple[float, float, float, float], str | None]:
@@ -176,7 +201,22 @@ class ShapeDetector:
         ``(x1, y1, x2, y2, class_name)`` pixel boxes used instead of the built-in proposals
         (class_name may be None or omitted: then the network classifies); ``up`` optional
         gravity-up unit vector in the camera frame (estimated from the depth when None).
+        Same as ``finish(prepare(...))``.
         """
+        return self.finish(self.prepare(rgb, depth, K, boxes2d=boxes2d, up=up, depth_scale=depth_scale))
+
+    def prepare(
+        self,
+        rgb: np.ndarray,
+        depth: np.ndarray,
+        K: np.ndarray,
+        boxes2d: Sequence[Any] | None = None,
+        up: np.ndarray | None = None,
+        depth_scale: float | None = None,
+    ) -> PreparedFrame:
+        """The stages before the network (inputs checked, gravity, proposals, frustums);
+        arguments as :meth:`detect`. Touches no state :meth:`finish` uses, so one thread may
+        prepare frame N+1 while another finishes frame N (the node's two-stage pipeline)."""
         t0 = time.perf_counter()
         rgb, depth, K = normalize_inputs(rgb, depth, K, depth_scale)
         t1 = time.perf_counter()
@@ -186,30 +226,46 @@ class ShapeDetector:
                 raise ValueError(f"up must be a finite non-zero 3-vector, got {up}")
             up = up / np.linalg.norm(up)
         up_used, up_conf, floor_height, built_in = self._gravity_and_proposals(rgb, depth, K, up, boxes2d is None)
-        self.last_up, self.last_up_confidence, self.last_floor_height = up_used, up_conf, floor_height
         if boxes2d is not None:
             parsed = [(*_parse_box(b), 1.0) for b in boxes2d]
         else:
             parsed = sorted(built_in, key=lambda p: -p[2])
         parsed = parsed[: self.max_objects]
         t2 = time.perf_counter()
-        points_cam = backproject(depth, K) if parsed else None
         valid = valid_depth(depth) if parsed else None
         R_cu = upright_rotation(up_used)
         frustums = [
-            extract_frustum(rgb, depth, K, box, self.num_points, up=up_used, points_cam=points_cam, valid=valid, R_cu=R_cu)
-            for box, _, _ in parsed
+            extract_frustum(rgb, depth, K, box, self.num_points, up=up_used, valid=valid, R_cu=R_cu) for box, _, _ in parsed
         ]
         keep = [i for i, f in enumerate(frustums) if f.valid > 0]
         t3 = time.perf_counter()
+        return PreparedFrame(
+            depth=depth,
+            K=K,
+            up=up_used,
+            up_confidence=up_conf,
+            floor_height=floor_height,
+            boxes=[parsed[i] for i in keep],
+            frustums=[frustums[i] for i in keep],
+            given_boxes=boxes2d is not None,
+            timing={"inputs_ms": 1e3 * (t1 - t0), "proposals_ms": 1e3 * (t2 - t1), "frustums_ms": 1e3 * (t3 - t2)},
+        )
+
+    def finish(self, frame: PreparedFrame) -> list[Object3D]:
+        """Network and post-processing (point fit, floor contact, 3D NMS for built-in
+        proposals, primitive snapping) of a :meth:`prepare` d frame: its objects, sorted by
+        score. Sets ``last_up``, ``last_up_confidence``, ``last_floor_height`` and
+        ``last_timing``."""
+        t3 = time.perf_counter()
+        boxes = frame.boxes
         preds = self.predictor.predict(
-            [frustums[i] for i in keep],
-            [CLASS_TO_ID[parsed[i][1]] if parsed[i][1] is not None else None for i in keep],
-            mirror=self.mirror_tta == "always" or (self.mirror_tta == "given" and boxes2d is not None),
+            frame.frustums,
+            [CLASS_TO_ID[c] if c is not None else None for _, c, _ in boxes],
+            mirror=self.mirror_tta == "always" or (self.mirror_tta == "given" and frame.given_boxes),
         )
         t4 = time.perf_counter()
         objects: list[Object3D] = []
-        for i, pred in zip(keep, preds):
+        for (box, _, _), fr, pred in zip(boxes, frame.frustums, preds):
             if pred.class_name not in CLASS_TO_ID or pred.score < self.score_threshold:
                 continue
             objects.append(
@@ -219,31 +275,27 @@ class ShapeDetector:
                     center=pred.center,
                     size=pred.size,
                     rotation=pred.rotation,
-                    box2d=parsed[i][0],
+                    box2d=box,
                     primitives=list(pred.primitives),
-                    pixel_index=frustums[i].pixel_index,
+                    pixel_index=fr.pixel_index,
                     seg_labels=np.asarray(pred.seg_prob) > 0.5,
                     class_scores=np.asarray(pred.class_probs[: len(CLASS_TO_ID)], dtype=np.float64),
                 )
             )
-        if points_cam is not None:
-            objects = grow_all_to_points(objects, points_cam, self.point_fit)
-        objects = snap_to_floor(objects, up_used, floor_height, self.floor_snap)
-        if boxes2d is None:  # built-in proposals overlap by design; given boxes are one per object
+        objects = grow_all_to_points(objects, functools.partial(pixel_points, frame.depth, frame.K), self.point_fit)
+        objects = snap_to_floor(objects, frame.up, frame.floor_height, self.floor_snap)
+        if not frame.given_boxes:  # built-in proposals overlap by design; given boxes are one per object
             objects = nms_3d(objects, self.nms_iou, decay=self.nms_decay, min_score=self.score_threshold)
         if self.snap_primitives:
             objects = snap_primitives(objects)
         objects.sort(key=lambda o: -o.score)
         t5 = time.perf_counter()
-        self.last_timing = {
-            "inputs_ms": 1e3 * (t1 - t0),
-            "proposals_ms": 1e3 * (t2 - t1),
-            "frustums_ms": 1e3 * (t3 - t2),
-            "network_ms": 1e3 * (t4 - t3),
-            "post_ms": 1e3 * (t5 - t4),
-            "total_ms": 1e3 * (t5 - t0),
-            "num_frustums": float(len(keep)),
-        }
+        self.last_up, self.last_up_confidence, self.last_floor_height = frame.up, frame.up_confidence, frame.floor_height
+        timing = dict(frame.timing)
+        timing.update(network_ms=1e3 * (t4 - t3), post_ms=1e3 * (t5 - t4))
+        timing["total_ms"] = sum(timing.values())
+        timing["num_frustums"] = float(len(boxes))
+        self.last_timing = timing
         return objects
 
     def warm_up(self) -> None:

@@ -31,6 +31,16 @@ def backproject(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.stack([u[None, :] * z, v[:, None] * z, z], axis=-1)
 
 
+def pixel_points(depth: np.ndarray, K: np.ndarray, flat_index: np.ndarray) -> np.ndarray:
+    """Camera-frame points (n,3) float64, metres, of the pixels ``flat_index`` (``v * W + u``)
+    of ``depth`` (HxW metres; invalid pixels keep their NaN/0 in z). Back-projects only the
+    pixels asked for: a detector needs a few thousand of a VGA frame's 307,200."""
+    flat_index = np.asarray(flat_index, dtype=np.int64)
+    v, u = np.divmod(flat_index, depth.shape[1])
+    z = depth[v, u].astype(np.float64)
+    return np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
+
+
 def valid_depth(depth: np.ndarray, max_depth: float = 10.0) -> np.ndarray:
     """Boolean mask of usable depth pixels: finite, > 0 and < ``max_depth`` metres."""
     with np.errstate(invalid="ignore"):
@@ -100,9 +110,11 @@ def extract_frustum(
 
     ``rgb`` HxWx3 uint8, ``depth`` HxW float32 metres (NaN/0/beyond ``max_depth`` invalid),
     ``K`` 3x3. Fewer valid pixels than ``num_points`` are resampled with replacement;
-    none gives a zero frustum with ``valid == 0``. ``points_cam`` may pass a cached
-    :func:`backproject` of the frame, ``valid`` a cached :func:`valid_depth` mask and ``R_cu``
-    a cached ``upright_rotation(up)`` (per-frame work a detector does once for all boxes).
+    none gives a zero frustum with ``valid == 0``. Only the sampled pixels are
+    back-projected (:func:`pixel_points`); ``points_cam`` may instead pass a
+    :func:`backproject` of the whole frame to read them from. ``valid`` may pass a cached
+    :func:`valid_depth` mask and ``R_cu`` a cached ``upright_rotation(up)`` (per-frame work
+    a detector does once for all boxes).
     ``rng`` None samples deterministically (evenly spaced).
     """
     h, w = depth.shape
@@ -127,15 +139,13 @@ def extract_frustum(
     vv, uu = np.divmod(flat[sel], x2 - x1)
     vv += y1
     uu += x1
+    index = vv * w + uu  # flat pixel index in the image
     if points_cam is not None:
         p_cam = points_cam[vv, uu].astype(np.float64)
     else:
-        z = depth[vv, uu].astype(np.float64)
-        p_cam = np.stack(
-            [(uu - K[0, 2]) / K[0, 0] * z, (vv - K[1, 2]) / K[1, 1] * z, z], axis=1
-        )
+        p_cam = pixel_points(depth, K, index)
     R_fc = (R_cu @ rot_z(-phi)).T
     p_f = p_cam @ R_fc.T
     col = rgb[vv, uu].astype(np.float32) / 255.0
     pts = np.concatenate([p_f.astype(np.float32), col], axis=1)
-    return Frustum(pts, (vv * w + uu).astype(np.int64), int(n), phi, R_cu)
+    return Frustum(pts, index, int(n), phi, R_cu)

@@ -14,7 +14,11 @@ Image and depth (and external detections) are paired by
 :class:`~shape_detector.sync.ApproximateTimeSynchronizer`; the latest camera_info is
 used. Sets go through a one-slot :class:`~shape_detector.sync.LatestMailbox` to a worker
 thread running the detector, so the node never falls behind: a newer set replaces one not
-yet processed (counted as dropped). Bad input (wrong encodings, mismatched sizes, missing
+yet processed (counted as dropped). With ``pipeline`` (default) the worker is two threads:
+the first checks the input and runs the detector's :meth:`prepare` (gravity, proposals,
+frustums) on frame N+1 while the second runs :meth:`finish` (network, post-processing)
+on frame N and publishes. The first takes a new frame only when the second has taken the
+last one, so output stays in input order and a frame waits for at most one other. Bad input (wrong encodings, mismatched sizes, missing
 or zero camera_info, NaN depth, empty images, detector exceptions) is logged (rate
 limited) and answered with an empty MarkerArray; it never stops the node.
 """
@@ -25,7 +29,7 @@ import sys
 import threading
 import time
 from collections import Counter, deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
@@ -50,8 +54,12 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "nms_decay": (0.1, "built-in proposals: score factor of the boxes 3D NMS suppresses, kept after the others "
                   "(0 = drop them; with score_threshold 0.3 none is published)", False,
                   {"floating_point_range": [FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)]}),
-    "workers": (2, "threads the network splits a frame's frustums over (single-threaded ops each; 1 = serial)", True,
+    "workers": (1, "threads the network splits a frame's frustums over (single-threaded ops each; 1 = serial; "
+                "2 is faster with pipeline false, slower with it)", True,
                 {"integer_range": [IntegerRange(from_value=1, to_value=64, step=1)]}),
+    "pipeline": (True, "two worker threads: the next frame's gravity, proposals and frustums run while the "
+                 "network finishes the current one (higher throughput, output in input order); false = one thread",
+                 True, {}),
     "precision": ("fp32", "network arithmetic: 'fp32' or 'bf16' (about 2x faster with many frustums on CPUs "
                   "with AMX / AVX512-BF16, slower without)", True, {}),
     "mirror_tta": ("given", "also run each frustum mirrored and average: 'given' (external boxes only), "
@@ -104,6 +112,19 @@ class FrameSet:
     detections2d: Any
     up: np.ndarray | None
     synced_at: float  # time.monotonic()
+
+
+@dataclass
+class _Job:
+    """A frame between the worker's two stages: what is left to run and to publish."""
+
+    fs: FrameSet
+    stamp: int
+    frame_id: str
+    detector: Any = None  # the detector that prepared the frame finishes it
+    prepared: Any = None  # its prepare() output; None: nothing left to run
+    objects: list = field(default_factory=list)
+    detect_ms: float | None = None  # detector time so far; None: the detector did not succeed
 
 
 def _unit(v: Any, what: str) -> np.ndarray:
@@ -201,6 +222,12 @@ class DetectorNode(Node):
             self._subscribe_imu()
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
+        # second stage (network + publishing) of the pipelined worker; None: one thread does all
+        self._handoff: LatestMailbox[_Job] | None = LatestMailbox() if self.p["pipeline"] else None
+        self._finisher: threading.Thread | None = None
+        if self._handoff is not None:
+            self._finisher = threading.Thread(target=self._finish_loop, name="shape_detector_finisher", daemon=True)
+            self._finisher.start()
         self._worker = threading.Thread(target=self._work, name="shape_detector_worker", daemon=True)
         self._worker.start()
         self.get_logger().info(
@@ -376,22 +403,55 @@ class DetectorNode(Node):
 
     # --- worker -----------------------------------------------------------------------------
     def _work(self) -> None:
+        """First stage: input checks and the detector's pre-network work; hands the frame to
+        the second stage (or, without ``pipeline``, finishes it itself)."""
         while self._running:
             try:
+                # pipelined: take a new frame only once the second stage has taken the last
+                # one, so the frame prepared is the newest and waits for at most one other
+                if self._handoff is not None and not self._handoff.wait_empty(timeout=0.2):
+                    self._maybe_report()
+                    continue
                 fs = self.mailbox.get(timeout=0.2)
                 if fs is not None and self._running:
                     try:
-                        self._process(fs)
+                        job = self._prepare(fs)
+                        if self._handoff is None:
+                            self._complete(job)
+                        else:
+                            self._handoff.put(job)
                     except Exception as e:  # noqa: BLE001 - the worker must survive anything
-                        with self._lock:
-                            self.counters["errors"] += 1
-                        self._warn("worker", f"frame processing failed: {type(e).__name__}: {e}", level="error")
+                        self._count_error(e)
                 self._maybe_report()
             except Exception as e:  # noqa: BLE001
                 print(f"[shape_detector] worker: {type(e).__name__}: {e}", file=sys.stderr)
                 time.sleep(0.1)
 
-    def _process(self, fs: FrameSet) -> None:
+    def _finish_loop(self) -> None:
+        """Second stage of the pipelined worker: network, post-processing, publishing."""
+        assert self._handoff is not None
+        while self._running:
+            job = self._handoff.get(timeout=0.2)
+            if job is None:
+                continue
+            try:
+                self._complete(job)
+            except Exception as e:  # noqa: BLE001 - the worker must survive anything
+                self._count_error(e)
+
+    def _count_error(self, e: Exception) -> None:
+        with self._lock:
+            self.counters["errors"] += 1
+        self._warn("worker", f"frame processing failed: {type(e).__name__}: {e}", level="error")
+
+    def _detector_failed(self, stamp: int, e: Exception) -> None:
+        with self._lock:
+            self.counters["detector_errors"] += 1
+        self._warn("detector", f"detector failed on frame {stamp / 1e9:.3f}: {type(e).__name__}: {e}", level="error")
+
+    def _prepare(self, fs: FrameSet) -> _Job:
+        """Input checks and, for a usable frame, the detector's work up to the network (all
+        of it without ``pipeline`` or when the detector has no ``prepare``/``finish``)."""
         if self._rebuild:
             self._rebuild = False
             try:
@@ -399,12 +459,9 @@ class DetectorNode(Node):
             except Exception as e:  # noqa: BLE001
                 self._warn("rebuild", f"cannot rebuild the detector, keeping the old one: {type(e).__name__}: {e}",
                            level="error", period=0.0)
-        stamp = int(header_stamp_ns(fs.image) or 0)
-        frame_id = str(getattr(fs.image.header, "frame_id", "") or "")
-        if not frame_id:
+        job = _Job(fs, int(header_stamp_ns(fs.image) or 0), str(getattr(fs.image.header, "frame_id", "") or ""))
+        if not job.frame_id:
             self._warn("frame_id", "colour image has an empty header.frame_id: markers will have no frame", 60.0)
-        objects: list = []
-        t0 = time.perf_counter()
         info = fs.camera_info
         if info is None:
             # the executor may hand over image + depth before a camera_info that arrived
@@ -419,23 +476,6 @@ class DetectorNode(Node):
                 size_mismatch=self.p["size_mismatch"],
                 detections2d=fs.detections2d,
             )
-            for note in pf.notes:
-                self._warn("note:" + note.split(":")[0], note, period=30.0)
-            if pf.valid_depth_fraction == 0.0:
-                with self._lock:
-                    self.counters["skipped_no_depth"] += 1
-            else:
-                td = time.perf_counter()
-                try:
-                    objects = list(self.detector.detect(pf.rgb, pf.depth, pf.K, boxes2d=pf.boxes2d, up=fs.up))
-                except Exception as e:  # noqa: BLE001
-                    objects = []
-                    with self._lock:
-                        self.counters["detector_errors"] += 1
-                    self._warn("detector", f"detector failed on frame {stamp / 1e9:.3f}: {type(e).__name__}: {e}",
-                               level="error")
-                else:
-                    self._detect_ms.append((time.perf_counter() - td) * 1e3)
         except FrameError as e:
             with self._lock:
                 self.counters[f"skipped_{e.kind}"] += 1
@@ -444,16 +484,50 @@ class DetectorNode(Node):
             else:
                 text = f"frame skipped: {e}"
             self._warn("skip:" + e.kind, text)
-        self._publish(objects, stamp, frame_id)
+            return job
+        for note in pf.notes:
+            self._warn("note:" + note.split(":")[0], note, period=30.0)
+        if pf.valid_depth_fraction == 0.0:
+            with self._lock:
+                self.counters["skipped_no_depth"] += 1
+            return job
+        det = self.detector
+        td = time.perf_counter()
+        try:
+            if self._handoff is not None and hasattr(det, "prepare") and hasattr(det, "finish"):
+                job.prepared = det.prepare(pf.rgb, pf.depth, pf.K, boxes2d=pf.boxes2d, up=fs.up)
+                job.detector = det
+            else:
+                job.objects = list(det.detect(pf.rgb, pf.depth, pf.K, boxes2d=pf.boxes2d, up=fs.up))
+        except Exception as e:  # noqa: BLE001
+            self._detector_failed(job.stamp, e)
+        else:
+            job.detect_ms = (time.perf_counter() - td) * 1e3
+        return job
+
+    def _complete(self, job: _Job) -> None:
+        """The rest of the detector's work on ``job`` (if any), then publish and count."""
+        if job.prepared is not None:
+            td = time.perf_counter()
+            try:
+                job.objects = list(job.detector.finish(job.prepared))
+            except Exception as e:  # noqa: BLE001
+                job.objects, job.detect_ms = [], None
+                self._detector_failed(job.stamp, e)
+            else:
+                job.detect_ms = (job.detect_ms or 0.0) + (time.perf_counter() - td) * 1e3
+            job.prepared = None
+        self._publish(job.objects, job.stamp, job.frame_id)
         now_ns = self.get_clock().now().nanoseconds
         with self._lock:
+            if job.detect_ms is not None:
+                self._detect_ms.append(job.detect_ms)
             self.counters["processed"] += 1
-            self.counters["objects"] += len(objects)
+            self.counters["objects"] += len(job.objects)
             self._period_processed += 1
-            if stamp > 0:
-                self._latency_ms.append((now_ns - stamp) / 1e6)
-            self._pipeline_ms.append((time.monotonic() - fs.synced_at) * 1e3)
-            self._last_process_ms = (time.perf_counter() - t0) * 1e3
+            if job.stamp > 0:
+                self._latency_ms.append((now_ns - job.stamp) / 1e6)
+            self._pipeline_ms.append((time.monotonic() - job.fs.synced_at) * 1e3)
 
     def _publish(self, objects: list, stamp: int, frame_id: str) -> None:
         from msg_conversion.markers import objects_to_markers
@@ -529,11 +603,14 @@ class DetectorNode(Node):
 
     # --- shutdown ---------------------------------------------------------------------------
     def stop(self) -> None:
-        """Stop the worker thread (idempotent)."""
+        """Stop the worker threads (idempotent)."""
         self._running = False
         self.mailbox.close()
-        if self._worker.is_alive() and threading.current_thread() is not self._worker:
-            self._worker.join(timeout=30.0)
+        if self._handoff is not None:
+            self._handoff.close()
+        for t in (self._worker, self._finisher):
+            if t is not None and t.is_alive() and threading.current_thread() is not t:
+                t.join(timeout=30.0)
 
     def destroy_node(self) -> None:
         self.stop()

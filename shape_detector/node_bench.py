@@ -5,7 +5,7 @@ a listener in this process records every ``~/markers`` message. Reported: frames
 marker output, latency from the image stamp (= its publish time) to the markers'
 arrival, p50/p95, and how many frames were dropped because the node was busy.
 
-    python -m shape_detector.node_bench [BAG] [--rate 1] [--loops 3] [--detector MOD:CALLABLE]
+    python -m shape_detector.node_bench [BAG] [--rate 1] [--loops 3] [--detector MOD:CALLABLE] [-p NAME:=VALUE]
 """
 
 from __future__ import annotations
@@ -189,9 +189,11 @@ def bench_node(
     ready_timeout: float = 120.0,
     echo: bool = False,
     print_result: bool = True,
+    node_params: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Run ``detector_node`` on ``bag`` (default: the sample bag) played ``loops`` times at
-    ``rate``; returns and prints frames/s and stamp->markers latency p50/p95 (ms)."""
+    ``rate``, with ``node_params`` set on the node; returns and prints frames/s and
+    stamp->markers latency p50/p95 (ms)."""
     import rclpy
 
     from .bag_io import open_bag, select_topics
@@ -206,6 +208,7 @@ def bench_node(
         params["weights"] = str(weights)
     if detector_factory:
         params["detector_factory"] = detector_factory
+    params.update(node_params or {})
     env = ros_env()
     os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID", "FASTDDS_DEFAULT_PROFILES_FILE")})
     proc = start_node(remaps, params, env=env, extra_pythonpath=extra_pythonpath)
@@ -264,9 +267,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--detector", help="detector factory MODULE:CALLABLE")
     p.add_argument("--echo", action="store_true", help="show the node's log")
     p.add_argument("--json", action="store_true")
+    p.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
+                   help="a node parameter, as ros2 run's -p (e.g. -p pipeline:=false -p workers:=2)")
     a = p.parse_args(argv)
+    node_params = {}
+    for item in a.param:
+        name, sep, value = item.partition(":=")
+        if not sep:
+            p.error(f"-p wants NAME:=VALUE, got {item!r}")
+        node_params[name] = value
     res = bench_node(a.bag, a.weights, rate=a.rate, loops=a.loops, detector_factory=a.detector, echo=a.echo,
-                     print_result=not a.json)
+                     print_result=not a.json, node_params=node_params)
     if a.json:
         print(json.dumps(res, indent=2))
     return 0

@@ -15,31 +15,42 @@ Measured on the validation shards (200 frames, GT 2D boxes): mAP@0.5 56.0 -> 64.
 
 from __future__ import annotations
 
+from typing import Callable, Union
+
 import numpy as np
 
 from .types import Object3D
+
+#: camera-frame points of a frame: an (H, W, 3) array, or flat pixel indices -> (n, 3)
+PointSource = Union[np.ndarray, Callable[[np.ndarray], np.ndarray]]
 
 #: fewer segmented points than this: the box is left as the network placed it
 MIN_POINTS = 20
 
 
-def grow_to_points(obj: Object3D, points_cam: np.ndarray, quantile: float = 0.15) -> Object3D:
+def grow_to_points(obj: Object3D, points_cam: PointSource, quantile: float = 0.15) -> Object3D:
     """``obj`` with its box grown to cover its segmented points' central range (in place).
 
-    ``points_cam``: the frame's back-projected depth, (H, W, 3) camera optical frame,
-    metres, NaN/z <= 0 invalid; ``obj.pixel_index`` (flat ``v * W + u``) and
-    ``obj.seg_labels`` (per-point foreground) select the object's points. Along each box
-    axis the box's [lo, hi] becomes [min(lo, q), max(hi, q')] with q, q' the ``quantile``
-    and ``1 - quantile`` quantiles of the points (:meth:`Object3D.set_extent`: the centre
-    moves accordingly and the primitives stretch with the box). Objects without enough
-    points are returned unchanged.
+    ``points_cam``: the frame's camera-frame points (optical frame, metres, NaN/z <= 0
+    invalid), either back-projected as an (H, W, 3) array or a function from flat pixel
+    indices ``v * W + u`` to (n, 3) points (e.g. ``functools.partial(pixel_points, depth,
+    K)``, which back-projects only those pixels); ``obj.pixel_index`` and ``obj.seg_labels``
+    (per-point foreground) select the object's points. Along each box axis the box's
+    [lo, hi] becomes [min(lo, q), max(hi, q')] with q, q' the ``quantile`` and
+    ``1 - quantile`` quantiles of the points (:meth:`Object3D.set_extent`: the centre moves
+    accordingly and the primitives stretch with the box). Objects without enough points,
+    or already covering the range, are returned unchanged.
     """
     if obj.pixel_index is None or obj.seg_labels is None or quantile >= 0.5:
         return obj
     idx = np.asarray(obj.pixel_index, dtype=np.int64)[np.asarray(obj.seg_labels, dtype=bool)]
     if idx.size < MIN_POINTS:
         return obj
-    p = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)[np.unique(idx)]
+    idx = np.unique(idx)
+    if callable(points_cam):
+        p = np.asarray(points_cam(idx), dtype=np.float64)
+    else:
+        p = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)[idx]
     p = p[np.all(np.isfinite(p), axis=1) & (p[:, 2] > 0)]
     if len(p) < MIN_POINTS:
         return obj
@@ -47,6 +58,8 @@ def grow_to_points(obj: Object3D, points_cam: np.ndarray, quantile: float = 0.15
     local = np.sort((p - c0) @ R, axis=0)  # box frame: columns of rotation = box axes
     q_lo, q_hi = _sorted_quantile(local, quantile), _sorted_quantile(local, 1.0 - quantile)
     half = 0.5 * obj.size
+    if np.all(q_lo >= -half) and np.all(q_hi <= half):
+        return obj  # the box already covers the range (most boxes): nothing to move
     obj.set_extent(np.minimum(-half, q_lo), np.maximum(half, q_hi))
     return obj
 
@@ -61,7 +74,7 @@ def _sorted_quantile(a: np.ndarray, q: float) -> np.ndarray:
     return a[i] + (pos - i) * (a[j] - a[i])
 
 
-def grow_all_to_points(objects: list[Object3D], points_cam: np.ndarray, quantile: float = 0.15) -> list[Object3D]:
+def grow_all_to_points(objects: list[Object3D], points_cam: PointSource, quantile: float = 0.15) -> list[Object3D]:
     """:func:`grow_to_points` on each object (``quantile`` <= 0 or >= 0.5: off)."""
     if quantile <= 0.0 or quantile >= 0.5:
         return objects

@@ -210,7 +210,15 @@ class LatestMailbox(Generic[T]):
                 return None
             item, self._item, self._has_item = self._item, None, False
             self.taken += 1
+            self._cond.notify_all()  # wake wait_empty()
             return item
+
+    def wait_empty(self, timeout: float | None = None) -> bool:
+        """Block until the slot is empty (its item taken) or the mailbox is closed; False
+        when ``timeout`` seconds pass first. A producer that calls this before taking new
+        work hands over one item at a time and never replaces one (a pipeline stage)."""
+        with self._cond:
+            return self._cond.wait_for(lambda: not self._has_item or self._closed, timeout=timeout)
 
     def pending(self) -> bool:
         with self._cond:

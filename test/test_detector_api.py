@@ -124,3 +124,23 @@ def test_mirror_tta_modes(detector):
     assert np.linalg.norm(b.center - centre) < 0.3
     with pytest.raises(ValueError, match="mirror_tta"):
         ShapeDetector(mirror_tta="sometimes")
+
+
+def test_prepare_then_finish_is_detect_and_frames_may_interleave(detector):
+    a, *_ = _dresser_scene(yaw=0.35)
+    b, *_ = _dresser_scene(yaw=-0.6, pitch_deg=20.0)
+    ref = [detector.detect(f.rgb, f.depth, f.K) for f in (a, b)]
+    up_b = detector.last_up  # from b, the last frame detected
+    pa = detector.prepare(a.rgb, a.depth, a.K)
+    pb = detector.prepare(b.rgb, b.depth, b.K)  # the node's first stage runs ahead by one frame
+    out_a = detector.finish(pa)
+    out_b = detector.finish(pb)
+    for got, want in ((out_a, ref[0]), (out_b, ref[1])):
+        assert len(got) == len(want) >= 1
+        for g, w in zip(got, want):
+            assert g.class_name == w.class_name and g.score == pytest.approx(w.score, abs=1e-6)
+            np.testing.assert_allclose(g.center, w.center, atol=1e-6)
+            np.testing.assert_allclose(g.size, w.size, atol=1e-6)
+    np.testing.assert_allclose(detector.last_up, up_b, atol=1e-9)  # finish() sets its frame's state
+    assert detector.last_timing["num_frustums"] == len(pb.frustums)
+    assert set(detector.last_timing) >= {"proposals_ms", "frustums_ms", "network_ms", "post_ms", "total_ms"}

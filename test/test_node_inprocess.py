@@ -232,3 +232,80 @@ def test_external_proposals_fall_back_without_vision_msgs(harness):
     assert not h.node.external and h.node.sync.num_inputs == 2
     h.frame(time.time_ns())
     assert len(h.wait_markers(1)) == 1
+
+
+class StagedDetector(FakeDetector):
+    """A FakeDetector with ShapeDetector's prepare()/finish() split, recording which thread ran
+    each stage and when; ``fail_on`` (a depth value) makes finish() raise for that frame."""
+
+    def __init__(self, delay: float = 0.0, fail_on: float | None = None, **kwargs):
+        super().__init__(delay, **kwargs)
+        self.stages: list[tuple[str, str, float, float]] = []  # (stage, thread, start, end)
+        self.fail_on = fail_on
+
+    def prepare(self, rgb, depth, K, boxes2d=None, up=None):
+        t = time.monotonic()
+        time.sleep(self.delay)
+        self.stages.append(("prepare", threading.current_thread().name, t, time.monotonic()))
+        return float(np.nanmedian(depth))
+
+    def finish(self, z):
+        t = time.monotonic()
+        time.sleep(self.delay)
+        self.stages.append(("finish", threading.current_thread().name, t, time.monotonic()))
+        if self.fail_on is not None and abs(z - self.fail_on) < 1e-3:
+            raise RuntimeError("broken frame")
+        return [Object3D("table", 0.7, [0.1, 0.2, z], [1.0, 0.6, 0.7], np.eye(3))]
+
+    def detect(self, rgb, depth, K, boxes2d=None, up=None):
+        return self.finish(self.prepare(rgb, depth, K, boxes2d, up))
+
+
+def test_pipeline_overlaps_frames_and_keeps_their_order(harness):
+    det = StagedDetector(delay=0.12)
+    h = harness("sd_pipe", det, params={"qos_depth": 20})
+    t0 = time.time_ns()
+    stamps = [t0 + k * 100 * MS for k in range(8)]
+    for s in stamps:
+        h.frame(s)
+        time.sleep(0.1)  # frames arrive faster than prepare + finish (0.24 s) but slower than either
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        st = h.node.get_stats()
+        if st.get("synced", 0) == 8 and st.get("processed", 0) + st["dropped"] == 8:
+            break
+        time.sleep(0.05)
+    st = h.node.get_stats()
+    assert st["synced"] == 8 and st["processed"] + st["dropped"] == 8
+    assert st["processed"] >= 5, st  # serially at most about 0.8 s / 0.24 s + 1 would be done
+    h.wait_markers(st["processed"])
+    got = [stamp_of(m) for m in h.markers]
+    assert got == sorted(got) and got[-1] == stamps[-1]
+    threads = {(stage, name) for stage, name, _, _ in det.stages}
+    assert threads == {("prepare", "shape_detector_worker"), ("finish", "shape_detector_finisher")}
+    prep = [(a, b) for stage, _, a, b in det.stages if stage == "prepare"]
+    fin = [(a, b) for stage, _, a, b in det.stages if stage == "finish"]
+    assert any(a1 < b2 and a2 < b1 for a1, b1 in prep for a2, b2 in fin), "no frame prepared while another finished"
+    assert st["detect_p50_ms"] >= 200  # detector time of a frame counts both stages
+
+
+def test_pipeline_off_runs_detect_in_one_thread(harness):
+    det = StagedDetector()
+    h = harness("sd_nopipe", det, params={"pipeline": False})
+    assert h.node._finisher is None
+    h.frame(time.time_ns())
+    assert len(h.wait_markers(1)) == 1
+    assert {name for _, name, _, _ in det.stages} == {"shape_detector_worker"}
+
+
+def test_pipeline_detector_failure_in_second_stage_publishes_empty_and_goes_on(harness):
+    det = StagedDetector(fail_on=2.5)
+    h = harness("sd_pipefail", det)
+    h.frame(time.time_ns())  # depth 2.5 m: finish() raises
+    assert len(h.wait_markers(1)) == 1
+    assert [m.action for m in h.markers[0].markers] == [3]  # DELETEALL only: no objects
+    det.fail_on = None
+    h.frame(time.time_ns())
+    assert len(h.wait_markers(2)) == 2 and len(h.markers[1].markers) == 4
+    st = h.node.get_stats()
+    assert st["detector_errors"] == 1 and st["processed"] == 2 and st.get("errors", 0) == 0

@@ -168,6 +168,33 @@ def test_mailbox_latest_only():
     assert box.put(5) is None and box.get(timeout=0) is None  # closed
 
 
+def test_mailbox_wait_empty_hands_over_one_item_at_a_time():
+    box: LatestMailbox[int] = LatestMailbox()
+    assert box.wait_empty(timeout=0)  # empty from the start
+    box.put(1)
+    assert not box.wait_empty(timeout=0.02)  # nobody took it
+    taken = []
+
+    def consumer():
+        while (item := box.get()) is not None:
+            time.sleep(0.005)
+            taken.append(item)
+
+    t = threading.Thread(target=consumer)
+    t.start()
+    for k in range(2, 40):  # a producer that waits before each put never replaces an item
+        assert box.wait_empty(timeout=2.0)
+        box.put(k)
+    assert box.wait_empty(timeout=2.0)
+    box.close()
+    t.join(timeout=2)
+    assert taken == list(range(1, 40)) and box.dropped == 0
+    box2: LatestMailbox[int] = LatestMailbox()
+    box2.put(7)
+    threading.Timer(0.05, box2.close).start()
+    assert box2.wait_empty(timeout=2.0)  # closing wakes a waiting producer
+
+
 def test_imu_gravity_filter_converges_and_rejects():
     f = ImuGravityFilter(time_constant=0.2)
     assert f.up is None
