@@ -92,9 +92,9 @@ def bench_pipeline(
 
 def _bench_pipelined(det, scenes: list) -> dict:
     """Throughput and latency of built-in-proposal detection run as the node runs it with
-    ``pipeline``: one thread ``prepare`` s frame N+1 while another ``finish`` es frame N; the
-    first takes a frame once the second has taken the previous one, and every frame is
-    there when it looks (a camera faster than the detector, minus the drops)."""
+    ``pipeline``: one thread runs ``prepare`` on frame N+1 while another runs ``finish`` on
+    frame N; the first takes a frame once the second has taken the previous one, and a
+    frame is always waiting (a camera faster than the detector, without the drops)."""
     import threading
 
     from .sync import LatestMailbox

@@ -235,7 +235,8 @@ class ShapeDetector:
         valid = valid_depth(depth) if parsed else None
         R_cu = upright_rotation(up_used)
         frustums = [
-            extract_frustum(rgb, depth, K, box, self.num_points, up=up_used, valid=valid, R_cu=R_cu) for box, _, _ in parsed
+            extract_frustum(rgb, depth, K, box, self.num_points, up=up_used, valid=valid, R_cu=R_cu)
+            for box, _, _ in parsed
         ]
         keep = [i for i, f in enumerate(frustums) if f.valid > 0]
         t3 = time.perf_counter()
@@ -253,8 +254,8 @@ class ShapeDetector:
 
     def finish(self, frame: PreparedFrame) -> list[Object3D]:
         """Network and post-processing (point fit, floor contact, 3D NMS for built-in
-        proposals, primitive snapping) of a :meth:`prepare` d frame: its objects, sorted by
-        score. Sets ``last_up``, ``last_up_confidence``, ``last_floor_height`` and
+        proposals, primitive snapping) of a frame from :meth:`prepare`: its objects, sorted
+        by score. Sets ``last_up``, ``last_up_confidence``, ``last_floor_height`` and
         ``last_timing``."""
         t3 = time.perf_counter()
         boxes = frame.boxes
@@ -290,7 +291,8 @@ class ShapeDetector:
             objects = snap_primitives(objects)
         objects.sort(key=lambda o: -o.score)
         t5 = time.perf_counter()
-        self.last_up, self.last_up_confidence, self.last_floor_height = frame.up, frame.up_confidence, frame.floor_height
+        self.last_up, self.last_up_confidence = frame.up, frame.up_confidence
+        self.last_floor_height = frame.floor_height
         timing = dict(frame.timing)
         timing.update(network_ms=1e3 * (t4 - t3), post_ms=1e3 * (t5 - t4))
         timing["total_ms"] = sum(timing.values())

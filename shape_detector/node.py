@@ -15,12 +15,14 @@ Image and depth (and external detections) are paired by
 used. Sets go through a one-slot :class:`~shape_detector.sync.LatestMailbox` to a worker
 thread running the detector, so the node never falls behind: a newer set replaces one not
 yet processed (counted as dropped). With ``pipeline`` (default) the worker is two threads:
-the first checks the input and runs the detector's :meth:`prepare` (gravity, proposals,
-frustums) on frame N+1 while the second runs :meth:`finish` (network, post-processing)
-on frame N and publishes. The first takes a new frame only when the second has taken the
-last one, so output stays in input order and a frame waits for at most one other. Bad input (wrong encodings, mismatched sizes, missing
-or zero camera_info, NaN depth, empty images, detector exceptions) is logged (rate
-limited) and answered with an empty MarkerArray; it never stops the node.
+the first checks the input and runs the detector's ``prepare`` (gravity, proposals,
+frustums) on frame N+1 while the second runs ``finish`` (network, post-processing) on
+frame N and publishes. The first takes a new frame only when the second has taken the
+last one, so output stays in input order and a frame waits for at most one other.
+
+Bad input (wrong encodings, mismatched sizes, missing or zero camera_info, NaN depth,
+empty images, detector exceptions) is logged (rate limited) and answered with an empty
+MarkerArray; it never stops the node.
 """
 
 from __future__ import annotations
