@@ -94,6 +94,20 @@ class Harness:
         self.pub_img.publish(numpy_to_image(rgb, "rgb8", T, stamp_ns, frame_id))
         self.pub_depth.publish(depth_to_image(depth, T, "16UC1", stamp_ns + depth_offset_ns, frame_id))
 
+    def play(self, stamps: list[int], gap: float, timeout: float = 10.0) -> dict:
+        """Publish a frame per stamp, ``gap`` seconds apart; wait until every one is synced and
+        then processed or dropped; return the node's stats."""
+        for s in stamps:
+            self.frame(s)
+            time.sleep(gap)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            st = self.node.get_stats()
+            if st.get("synced", 0) == len(stamps) and st.get("processed", 0) + st["dropped"] == len(stamps):
+                break
+            time.sleep(0.05)
+        return self.node.get_stats()
+
     def wait_markers(self, n: int, timeout: float = 20.0) -> list:
         deadline = time.monotonic() + timeout
         while len(self.markers) < n and time.monotonic() < deadline:
@@ -150,16 +164,7 @@ def test_never_falls_behind(harness):
     h = harness("sd_busy", det, params={"qos_depth": 20})
     t0 = time.time_ns()
     stamps = [t0 + k * 20 * MS for k in range(12)]
-    for s in stamps:
-        h.frame(s)
-        time.sleep(0.02)
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline:
-        st = h.node.get_stats()
-        if st.get("synced", 0) == 12 and st.get("processed", 0) + st["dropped"] == 12:
-            break
-        time.sleep(0.05)
-    st = h.node.get_stats()
+    st = h.play(stamps, gap=0.02)
     assert st["synced"] == 12
     assert st["dropped"] >= 5, st
     assert st["processed"] + st["dropped"] == 12
@@ -266,16 +271,8 @@ def test_pipeline_overlaps_frames_and_keeps_their_order(harness):
     h = harness("sd_pipe", det, params={"qos_depth": 20})
     t0 = time.time_ns()
     stamps = [t0 + k * 100 * MS for k in range(8)]
-    for s in stamps:
-        h.frame(s)
-        time.sleep(0.1)  # frames arrive faster than prepare + finish (0.24 s) but slower than either
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline:
-        st = h.node.get_stats()
-        if st.get("synced", 0) == 8 and st.get("processed", 0) + st["dropped"] == 8:
-            break
-        time.sleep(0.05)
-    st = h.node.get_stats()
+    # frames arrive faster than prepare + finish (0.24 s) but slower than either
+    st = h.play(stamps, gap=0.1)
     assert st["synced"] == 8 and st["processed"] + st["dropped"] == 8
     assert st["processed"] >= 5, st  # serially at most about 0.8 s / 0.24 s + 1 would be done
     h.wait_markers(st["processed"])
