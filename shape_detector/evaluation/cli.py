@@ -47,6 +47,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
                    "per-class proposals; detected boxes only; default 1 = off)")
     p.add_argument("--estimate-up", action="store_true",
                    help="let the detector estimate gravity instead of passing the frame's GT up vector")
+    p.add_argument("--precision", default="fp32", choices=("fp32", "bf16"),
+                   help="network arithmetic (bf16: bfloat16 autocast, faster on CPUs with AMX / AVX512-BF16)")
     p.add_argument("--title", default=None, help="report title")
     p.add_argument("--quiet", action="store_true", help="no per-frame progress")
 
@@ -73,7 +75,7 @@ def main(args: argparse.Namespace) -> int:
         detector = ShapeDetector(weights=args.weights, device=args.device, score_threshold=args.score_threshold,
                                  floor_snap=args.floor_snap, point_fit=args.point_fit,
                                  mirror_tta=args.mirror_tta, snap_primitives=not args.no_snap_primitives,
-                                 nms_decay=args.nms_decay)
+                                 nms_decay=args.nms_decay, precision=args.precision)
     except FileNotFoundError as e:
         print(f"shape-detector evaluate: {e}", file=sys.stderr)
         return 2
@@ -110,6 +112,7 @@ def main(args: argparse.Namespace) -> int:
             "snap_primitives": not args.no_snap_primitives,
             "mirror_tta": args.mirror_tta,
             "nms_decay": args.nms_decay,
+            "precision": args.precision,
             "up": "estimated" if args.estimate_up else "ground truth",
         }
     )
