@@ -90,8 +90,9 @@ class ShapeDetector:
     stands on the floor; the top is kept), 0 = off; see :mod:`shape_detector.floor`.
     ``point_fit``: grow each box to cover its segmented points between this quantile and
     its complement along each box axis (0 = off; see :mod:`shape_detector.point_fit`).
-    ``precision``: the network's arithmetic, ``"fp32"`` or ``"bf16"`` (faster on CPUs with
-    AMX / AVX512-BF16; see :class:`~shape_detector.model.predictor.FrustumPredictor`).
+    ``precision``: the network's arithmetic, ``"fp32"``, ``"bf16"`` (faster on CPUs with
+    AMX / AVX512-BF16 for several frustums) or ``"auto"`` (bf16 for batches of 4 or more
+    frustums on a CPU with AMX); see :class:`~shape_detector.model.predictor.FrustumPredictor`.
     ``mirror_tta``: also run each frustum mirrored and average the two predictions
     (:func:`~shape_detector.model.predictor.merge_mirrored`) -- ``"given"`` (default: only
     for given ``boxes2d``, a few per frame), ``"always"`` or ``"never"``. On the validation

@@ -62,8 +62,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "pipeline": (True, "two worker threads: the next frame's gravity, proposals and frustums run while the "
                  "network finishes the current one (higher throughput, output in input order); false = one thread",
                  True, {}),
-    "precision": ("fp32", "network arithmetic: 'fp32' or 'bf16' (about 2x faster with many frustums on CPUs "
-                  "with AMX / AVX512-BF16, slower without)", True, {}),
+    "precision": ("auto", "network arithmetic: 'auto' (bfloat16 for 4 or more frustums on CPUs with AMX, "
+                  "else fp32), 'fp32' or 'bf16' (faster with many frustums on AMX / AVX512-BF16 CPUs, "
+                  "much slower without)", True, {}),
     "mirror_tta": ("given", "also run each frustum mirrored and average: 'given' (external boxes only), "
                    "'always' or 'never'", True, {}),
     "proposal_source": ("geometric", "2D proposals: 'geometric' (built in) or 'external' (the detections2d "

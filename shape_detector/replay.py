@@ -553,8 +553,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     d.add_argument("--device", default="cpu")
     d.add_argument("--score-threshold", type=float, default=0.3)
     d.add_argument("--max-objects", type=int, default=20)
-    d.add_argument("--precision", default="fp32", choices=("fp32", "bf16"),
-                   help="network arithmetic (bf16: faster on CPUs with AMX / AVX512-BF16)")
+    d.add_argument("--precision", default="fp32", choices=("fp32", "bf16", "auto"),
+                   help="network arithmetic (bf16: faster on CPUs with AMX / AVX512-BF16; auto: bf16 for "
+                        "4 or more frustums where the CPU has AMX)")
     d.add_argument("--workers", type=int, default=2, help="threads the network splits a frame's frustums over (default 2)")
     d.add_argument("--proposals", choices=("geometric", "external"), default=None,
                    help="2D proposal source (default: external when --detections2d is given)")
