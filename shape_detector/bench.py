@@ -101,19 +101,30 @@ def _bench_pipelined(det, scenes: list) -> dict:
 
     handoff: LatestMailbox = LatestMailbox()
     latency: list[float] = []
+    errors: list[BaseException] = []
 
     def first() -> None:
-        for f in scenes:
+        try:
+            for f in scenes:
+                handoff.wait_empty()
+                if handoff.closed:  # the second stage failed
+                    return
+                t0 = time.perf_counter()
+                handoff.put((t0, det.prepare(f.rgb, f.depth, f.K)))
             handoff.wait_empty()
-            t0 = time.perf_counter()
-            handoff.put((t0, det.prepare(f.rgb, f.depth, f.K)))
-        handoff.wait_empty()
-        handoff.close()
+        except BaseException as e:  # noqa: BLE001 - re-raised by the caller's thread
+            errors.append(e)
+        finally:
+            handoff.close()
 
     def second() -> None:
-        while (item := handoff.get()) is not None:
-            det.finish(item[1])
-            latency.append(1e3 * (time.perf_counter() - item[0]))
+        try:
+            while (item := handoff.get()) is not None:
+                det.finish(item[1])
+                latency.append(1e3 * (time.perf_counter() - item[0]))
+        except BaseException as e:  # noqa: BLE001
+            errors.append(e)
+            handoff.close()
 
     det.finish(det.prepare(scenes[0].rgb, scenes[0].depth, scenes[0].K))  # warm-up
     threads = [threading.Thread(target=first), threading.Thread(target=second)]
@@ -122,6 +133,8 @@ def _bench_pipelined(det, scenes: list) -> dict:
         t.start()
     for t in threads:
         t.join()
+    if errors:
+        raise errors[0]
     ms = 1e3 * (time.perf_counter() - t0) / len(scenes)
     return {
         "ms_per_frame": float(ms),
