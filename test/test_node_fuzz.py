@@ -102,8 +102,13 @@ def _send(fuzz, image, depth, info=None, wait=True):
     node, det, pubs, markers, T = fuzz
     n = len(markers)
     if info is not None:
+        got = node.counters["received_camera_info"]
         pubs["info"].publish(info)
-        time.sleep(0.02)
+        # the frame must meet this camera_info, not the previous one: wait until the node has
+        # it (else the executor may hand over image and depth first)
+        deadline = time.monotonic() + 5
+        while node.counters["received_camera_info"] == got and time.monotonic() < deadline:
+            time.sleep(0.005)
     pubs["image"].publish(image)
     pubs["depth"].publish(depth)
     if wait:
