@@ -2,8 +2,8 @@
 
 Runs ``ShapeDetector.detect`` once per frame with the proposal cap at its largest and NMS
 off, keeps the raw detections (in proposal-rank order), then scores every combination of
-proposal cap x NMS IoU x containment threshold with the AP code. Prints one line per
-setting, best last. Usage::
+proposal cap x NMS IoU x containment threshold (with the detector's Soft-NMS decay) with the
+AP code. Prints one line per setting, best last. Usage::
 
     python scripts/tune_builtin.py --data data/val --frames 100 [--weights W]
 """
@@ -34,7 +34,7 @@ def main() -> None:
     a = ap.parse_args()
 
     captured: list = []
-    detector_module.nms_3d = lambda objs, thr: (captured.append(list(objs)), list(objs))[1]
+    detector_module.nms_3d = lambda objs, *args, **kwargs: (captured.append(list(objs)), list(objs))[1]
     det = ShapeDetector(weights=a.weights, score_threshold=0.0, max_objects=30)
     raw, gts, ups = [], [], []
     for i, fr in enumerate(iter_frames(a.data)):
@@ -47,7 +47,7 @@ def main() -> None:
         ups.append(fr.up)
     rows = []
     for cap, iou, cont in itertools.product((12, 16, 20, 30), (0.1, 0.25, 0.4), (0.5, 0.7, 0.9)):
-        dets = [nms_3d(r[:cap], iou, cont) for r in raw]
+        dets = [nms_3d(r[:cap], iou, cont, decay=det.nms_decay) for r in raw]  # as the detector (Soft-NMS)
         res = evaluate_detections(dets, gts, (0.25, 0.5), CLASSES, min_visible=a.min_visible, ups_per_frame=ups)
         row = {"cap": cap, "nms_iou": iou, "containment": cont,
                "mAP25": float(res["mAP"]["0.25"]), "mAP50": float(res["mAP"]["0.5"])}

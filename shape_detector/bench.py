@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .model.config import PRECISIONS
+
 TARGETS = ("synth", "network", "proposals", "pipeline", "node")
 
 
@@ -25,8 +27,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1, as the detector)")
     p.add_argument("--workers", type=int, default=2, help="threads the network splits a frame's frustums over (default 2, as the detector)")
     p.add_argument("--max-objects", type=int, default=20, help="pipeline: frustums per frame cap (default 20, as the detector)")
-    p.add_argument("--precision", default="fp32", choices=("fp32", "bf16", "auto"),
-                   help="network arithmetic (bf16: faster on CPUs with AMX / AVX512-BF16)")
+    p.add_argument("--precision", default="fp32", choices=PRECISIONS,
+                   help="network arithmetic (bf16: faster on CPUs with AMX / AVX512-BF16; auto: bf16 for 4 or "
+                        "more frustums where the CPU has AMX)")
     p.add_argument("--weights", default=None, help="weights for network/pipeline/node (default: packaged)")
     p.add_argument("--bag", default=str(Path(__file__).resolve().parents[1] / "bags" / "sample"))
     p.add_argument("--json", default=None, help="also write the results here")

@@ -15,14 +15,14 @@ Measured on the validation shards (200 frames, GT 2D boxes): mAP@0.5 56.0 -> 64.
 
 from __future__ import annotations
 
-from typing import Callable, Union
+from typing import Callable
 
 import numpy as np
 
 from .types import Object3D
 
-#: camera-frame points of a frame: an (H, W, 3) array, or flat pixel indices -> (n, 3)
-PointSource = Union[np.ndarray, Callable[[np.ndarray], np.ndarray]]
+#: camera-frame points of a frame's pixels: flat pixel indices ``v * W + u`` -> (n, 3) metres
+PointSource = Callable[[np.ndarray], np.ndarray]
 
 #: fewer segmented points than this: the box is left as the network placed it
 MIN_POINTS = 20
@@ -32,9 +32,9 @@ def grow_to_points(obj: Object3D, points_cam: PointSource, quantile: float = 0.1
     """``obj`` with its box grown to cover its segmented points' central range (in place).
 
     ``points_cam``: the frame's camera-frame points (optical frame, metres, NaN/z <= 0
-    invalid), either back-projected as an (H, W, 3) array or a function from flat pixel
-    indices ``v * W + u`` to (n, 3) points (e.g. ``functools.partial(pixel_points, depth,
-    K)``, which back-projects only those pixels); ``obj.pixel_index`` and ``obj.seg_labels``
+    invalid) as a function from flat pixel indices ``v * W + u`` to (n, 3) points, e.g.
+    ``functools.partial(pixel_points, depth, K)``, which back-projects only those pixels;
+    ``obj.pixel_index`` and ``obj.seg_labels``
     (per-point foreground) select the object's points. Along each box axis the box's
     [lo, hi] becomes [min(lo, q), max(hi, q')] with q, q' the ``quantile`` and
     ``1 - quantile`` quantiles of the points (:meth:`Object3D.set_extent`: the centre moves
@@ -46,11 +46,7 @@ def grow_to_points(obj: Object3D, points_cam: PointSource, quantile: float = 0.1
     idx = np.asarray(obj.pixel_index, dtype=np.int64)[np.asarray(obj.seg_labels, dtype=bool)]
     if idx.size < MIN_POINTS:
         return obj
-    idx = np.unique(idx)
-    if callable(points_cam):
-        p = np.asarray(points_cam(idx), dtype=np.float64)
-    else:
-        p = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)[idx]
+    p = np.asarray(points_cam(np.unique(idx)), dtype=np.float64)
     p = p[np.all(np.isfinite(p), axis=1) & (p[:, 2] > 0)]
     if len(p) < MIN_POINTS:
         return obj

@@ -39,6 +39,7 @@ from .bag_io import (
     convert_message,
     open_bag,
 )
+from .model.config import PRECISIONS
 
 # =====================================================================================
 # offline replay
@@ -553,7 +554,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     d.add_argument("--device", default="cpu")
     d.add_argument("--score-threshold", type=float, default=0.3)
     d.add_argument("--max-objects", type=int, default=20)
-    d.add_argument("--precision", default="fp32", choices=("fp32", "bf16", "auto"),
+    d.add_argument("--precision", default="fp32", choices=PRECISIONS,
                    help="network arithmetic (bf16: faster on CPUs with AMX / AVX512-BF16; auto: bf16 for "
                         "4 or more frustums where the CPU has AMX)")
     d.add_argument("--workers", type=int, default=2, help="threads the network splits a frame's frustums over (default 2)")

@@ -10,15 +10,15 @@ from shape_detector.point_fit import MIN_POINTS, grow_all_to_points, grow_to_poi
 from shape_detector.types import Cuboid, Object3D
 
 
-def _scene(points: np.ndarray, W: int = 100) -> tuple[np.ndarray, np.ndarray]:
-    """Put camera-frame points into an (H, W, 3) 'back-projected depth' grid; return it and
-    the flat pixel indices of the points."""
+def _scene(points: np.ndarray, W: int = 100):
+    """Put camera-frame points into a 'back-projected depth' grid; return its lookup (flat
+    pixel indices -> points, as ``pixel_points``) and the flat pixel indices of the points."""
     n = len(points)
     H = n // W + 2
     grid = np.full((H * W, 3), np.nan)
     idx = np.arange(n) + W  # first row stays invalid
     grid[idx] = points
-    return grid.reshape(H, W, 3), idx
+    return (lambda flat: grid[flat]), idx
 
 
 def _object(center, size, rotation, idx, fg=None, prims=()) -> Object3D:

@@ -16,6 +16,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from ..model.config import PRECISIONS
+
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weights", default=None, help="network weights (.pt); default: the packaged ones")
@@ -47,7 +49,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
                    "per-class proposals; detected boxes only; default 1 = off)")
     p.add_argument("--estimate-up", action="store_true",
                    help="let the detector estimate gravity instead of passing the frame's GT up vector")
-    p.add_argument("--precision", default="fp32", choices=("fp32", "bf16", "auto"),
+    p.add_argument("--precision", default="fp32", choices=PRECISIONS,
                    help="network arithmetic (bf16: bfloat16 autocast, faster on CPUs with AMX / AVX512-BF16; auto: bf16 "
                         "for 4 or more frustums where the CPU has AMX)")
     p.add_argument("--title", default=None, help="report title")

@@ -16,6 +16,9 @@ from typing import Any
 
 from ..classes import MEAN_SIZES, NUM_CLASSES
 
+#: the network's arithmetic choices (see :class:`~shape_detector.model.predictor.FrustumPredictor`)
+PRECISIONS = ("fp32", "bf16", "auto")
+
 
 def _default_mean_sizes() -> list[list[float]]:
     return [[float(v) for v in row] for row in MEAN_SIZES]

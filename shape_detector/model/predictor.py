@@ -29,7 +29,7 @@ from ..classes import CLASSES
 from ..frustum import Frustum
 from ..geometry import rot_z, stretch_cuboids, wrap_angle
 from ..types import Cuboid
-from .config import ModelConfig
+from .config import PRECISIONS, ModelConfig
 from .io import default_weights_path, load_weights
 from .network import FrustumShapeNet
 from .primitives import primitive_params
@@ -40,7 +40,6 @@ BACKGROUND = "background"
 #: AMX (measured on one thread: 1 frustum 5.9 ms in bf16 against 4.3 in fp32, 5 frustums 13.7
 #: against 15.8, 10 frustums 27.4 against 35.6), smaller ones in fp32
 AUTO_BF16_MIN_BATCH = 4
-PRECISIONS = ("fp32", "bf16", "auto")
 
 
 def cpu_has_amx() -> bool:
