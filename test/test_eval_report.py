@@ -76,6 +76,7 @@ def test_runner_gt_boxes():
     sh = res["shape"]
     assert sh["per_class"]["chair"]["n"] == 2 and sh["per_class"]["table"]["n"] == 0
     assert sh["per_class"]["chair"]["iou_object"]["mean"] == pytest.approx(1.0)
+    assert sh["per_class"]["chair"]["iou_box"]["mean"] == pytest.approx(1.0)
     assert sh["per_class"]["chair"]["distance_object"]["mean"] == pytest.approx(0.0, abs=1e-12)
     assert 0.0 < sh["per_class"]["chair"]["iou_camera"]["mean"] < 1.0
     assert res["timing"]["frames"] == 2 and len(res["timing"]["per_frame_s"]) == 2
@@ -168,10 +169,12 @@ def test_cli_with_generated_frames(tmp_path, monkeypatch):
 def test_shape_class_mean_averages_class_means_not_pairs():
     from shape_detector.evaluation.runner import _class_mean
 
-    recs = [{"class": "chair", "iou_camera": v, "distance_camera": 0.1, "iou_object": v, "distance_object": 0.1}
-            for v in (0.1, 0.1, 0.1)]
-    recs.append({"class": "bed", "iou_camera": 0.7, "distance_camera": 0.3, "iou_object": 0.7, "distance_object": 0.3})
+    recs = [{"class": "chair", "iou_camera": v, "distance_camera": 0.1, "iou_object": v, "distance_object": 0.1,
+             "iou_box": v} for v in (0.1, 0.1, 0.1)]
+    recs.append({"class": "bed", "iou_camera": 0.7, "distance_camera": 0.3, "iou_object": 0.7, "distance_object": 0.3,
+                 "iou_box": 0.9})
     cm = _class_mean(recs, ["bed", "table", "chair"])
     assert cm["classes"] == 2 and cm["n"] == 4
     assert cm["iou_object"]["mean"] == pytest.approx(0.4)  # (0.1 + 0.7) / 2, not 1.0 / 4
     assert cm["distance_camera"]["mean"] == pytest.approx(0.2)
+    assert cm["iou_box"]["mean"] == pytest.approx(0.5)

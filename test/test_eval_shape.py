@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from shape_detector.evaluation.shape_metrics import (
+    box_relative_iou,
     gt_scale,
     sample_union_surface,
     shape_iou,
@@ -106,3 +107,40 @@ def test_to_box_frame():
         to_box_frame([part], center, R, normalise=True)
     m = shape_metrics([part], [part], n=200, rng=0)
     assert m == {"iou": 1.0, "surface_distance": 0.0}
+
+
+def _in_box(parts_unit, centre, R, size):
+    """Axis-aligned cuboids given in a box's unit cube -> the box's frame (camera frame)."""
+    size = np.asarray(size, dtype=np.float64)
+    return [Cuboid(centre + R @ (np.asarray(c) * size), np.asarray(s) * size, R) for c, s in parts_unit]
+
+
+TABLE_UNIT = [((0, 0, 0.475), (1, 1, 0.05)), ((-0.45, -0.45, -0.025), (0.1, 0.1, 0.95))]  # top + one leg
+
+
+def test_box_relative_iou_ignores_the_box_error():
+    gt_box = (np.array([0.0, 0.0, 2.0]), I3, np.array([1.2, 0.8, 0.75]))
+    pred_box = (np.array([0.3, -0.1, 2.2]), rot_z(0.4), np.array([1.0, 0.9, 0.85]))  # off in all 7 dof
+    gt = _in_box(TABLE_UNIT, *gt_box)
+    pred = _in_box(TABLE_UNIT, *pred_box)
+    assert box_relative_iou(pred, pred_box, gt, gt_box) == pytest.approx(1.0)
+    # the isotropic object frame still sees the box's size error: the thin top misses
+    po = to_box_frame(pred, pred_box[0], pred_box[1], pred_box[2], normalise=True)
+    go = to_box_frame(gt, gt_box[0], gt_box[1], gt_box[2], normalise=True)
+    assert shape_iou(po, go) < 0.5
+
+
+def test_box_relative_iou_hand_computed():
+    box = (np.array([1.0, 2.0, 3.0]), rot_z(0.7), np.array([2.0, 1.0, 0.5]))
+    full = _in_box([((0, 0, 0), (1, 1, 1))], *box)
+    lower = _in_box([((0, 0, -0.25), (1, 1, 0.5))], *box)
+    upper = _in_box([((0, 0, 0.25), (1, 1, 0.5))], *box)
+    other = (np.zeros(3), I3, np.array([1.0, 3.0, 2.0]))
+    # the grid spans the unit cube: 16 of 32 z-layers are inside the lower half
+    assert box_relative_iou(lower, box, _in_box([((0, 0, 0), (1, 1, 1))], *other), other) == pytest.approx(0.5)
+    assert box_relative_iou(upper, box, _in_box([((0, 0, -0.25), (1, 1, 0.5))], *other), other) == 0.0
+    assert box_relative_iou(full, box, full, box) == 1.0
+    assert box_relative_iou([], box, full, box) == 0.0
+    assert math.isnan(box_relative_iou([], box, [], box))
+    with pytest.raises(ValueError, match="positive"):
+        box_relative_iou(full, (box[0], box[1], np.array([1.0, 0.0, 1.0])), full, box)

@@ -250,9 +250,10 @@ def test_auto_precision_uses_bf16_for_large_batches_on_amx_cpus(weights, monkeyp
     assert not np.array_equal(bf.forward_arrays(pts, oh)["center"], fp.forward_arrays(pts, oh)["center"])
 
 
-def _arrays(center, heading, size, probs, prim_center, prim_size, prim_rotation):
+def _arrays(center, heading, size, probs, prim_center, prim_size, prim_rotation, heading_conf=None):
     B = len(center)
     return {
+        "heading_conf": np.asarray(heading_conf if heading_conf is not None else [0.5] * B, np.float32),
         "center": np.asarray(center, np.float32), "heading": np.asarray(heading, np.float32),
         "size": np.asarray(size, np.float32), "cluster": np.zeros(B, np.float32),
         "probs": np.asarray(probs, np.float32), "seg_prob": np.full((B, 4), 0.5, np.float32),
@@ -287,6 +288,39 @@ def test_merge_mirrored_hand_case():
     np.testing.assert_allclose(out["prim_size"][0, 0], [0.55, 0.5, 0.5 * 2.8 / 3], atol=1e-6)
     # a primitive at 45 deg in a box stretched 2x along x: both its horizontal axes grow by |(2, 1)| / sqrt 2
     np.testing.assert_allclose(out["prim_size"][2, 0, :2], [0.5 * np.sqrt(2.5)] * 2, atol=1e-5)
+
+
+def test_merge_mirrored_keeps_one_pass_when_they_disagree_about_the_axes():
+    from shape_detector.model.predictor import merge_mirrored
+
+    R = rot_z(0.3)
+    arr = _arrays(
+        center=[[0.2, 3.0, 0.1], [0.2, 3.0, 0.1], [-0.6, 3.4, 0.0], [-0.6, 3.4, 0.0]],
+        # both frustums: 0.1 against a mirrored pi - (pi/2 + 0.1) = pi/2 - 0.1 -> 80 degrees apart
+        heading=[0.1, 0.1, np.pi / 2 + 0.1, np.pi / 2 + 0.1],
+        size=[[0.5, 1.0, 1.2]] * 2 + [[0.6, 0.9, 1.0]] * 2,
+        probs=[[0.8, 0.2], [0.6, 0.4], [0.4, 0.6], [0.2, 0.8]],
+        prim_center=[[[0.1, 0.2, 0.3]]] * 2 + [[[0.1, 0.25, -0.3]]] * 2,
+        prim_size=[[[0.4, 0.5, 0.6]]] * 4,
+        prim_rotation=[[np.eye(3)]] * 2 + [[R]] * 2,
+        heading_conf=[0.9, 0.3, 0.5, 0.6],  # frustum 0 trusts its first pass, frustum 1 the mirrored one
+    )
+    out = merge_mirrored(arr)
+    # frustum 0: the first pass whole (no 45-degree average)
+    np.testing.assert_allclose(out["center"][0], [0.2, 3.0, 0.1], atol=1e-6)
+    np.testing.assert_allclose(out["heading"][0], 0.1, atol=1e-6)
+    np.testing.assert_allclose(out["size"][0], [0.5, 1.0, 1.2], atol=1e-6)
+    np.testing.assert_allclose(out["prim_center"][0, 0], [0.1, 0.2, 0.3], atol=1e-6)
+    # frustum 1: the mirrored pass whole, mapped back: x -> -x in F, heading pi - t, primitives y -> -y
+    np.testing.assert_allclose(out["center"][1], [0.6, 3.4, 0.0], atol=1e-6)
+    np.testing.assert_allclose(out["heading"][1], np.pi / 2 - 0.1, atol=1e-6)
+    np.testing.assert_allclose(out["size"][1], [0.6, 0.9, 1.0], atol=1e-6)
+    np.testing.assert_allclose(out["prim_center"][1, 0], [0.1, -0.25, -0.3], atol=1e-6)
+    F = np.diag([1.0, -1.0, 1.0])
+    np.testing.assert_allclose(out["prim_rotation"][1, 0], F @ R @ F, atol=1e-6)
+    np.testing.assert_allclose(out["prim_size"][1, 0], [0.4, 0.5, 0.6], atol=1e-6)
+    # class probabilities are still averaged
+    np.testing.assert_allclose(out["probs"], [[0.6, 0.4], [0.4, 0.6]], atol=1e-6)
 
 
 def test_mirror_tta_averages_the_two_passes(weights):

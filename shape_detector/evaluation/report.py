@@ -235,7 +235,8 @@ def _box_section(box: Mapping[str, Any], classes: Sequence[str]) -> list[str]:
 
 
 def _shape_section(shape: Mapping[str, Any], classes: Sequence[str]) -> list[str]:
-    headers = ["class", "n", "IoU (camera)", "surf. dist (camera)", "IoU (object)", "surf. dist (object)"]
+    headers = ["class", "n", "IoU (camera)", "surf. dist (camera)", "IoU (object)", "surf. dist (object)",
+               "IoU (box-relative)"]
     per = dict(shape.get("per_class", {}))
     rows = []
     extra = [("**all**", shape.get("all", {"n": 0}))]
@@ -243,7 +244,7 @@ def _shape_section(shape: Mapping[str, Any], classes: Sequence[str]) -> list[str
         extra.append(("**class mean**", shape["class_mean"]))
     for name, s in _rows_with_pairs(per, classes) + extra:
         rows.append([name, s.get("n", 0), s.get("iou_camera"), s.get("distance_camera"),
-                     s.get("iou_object"), s.get("distance_object")])
+                     s.get("iou_object"), s.get("distance_object"), s.get("iou_box")])
     lines = ["## Shape primitives vs GT parts (means over pairs; classes without pairs omitted; "
              "'class mean' averages the class rows)", ""]
     if shape.get("note"):

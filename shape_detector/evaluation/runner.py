@@ -12,7 +12,8 @@
   matching at the lowest IoU threshold. Ignored GT form no pairs;
 * shape metrics (:mod:`.shape_metrics`) for pairs whose GT has ``parts``: in the camera
   frame and in each box's own normalised frame (predicted primitives in the predicted
-  box frame, GT parts in the GT box frame, both scaled to unit box diagonal). Pairs whose
+  box frame, GT parts in the GT box frame, both scaled to unit box diagonal), and the IoU
+  box-relative (each set scaled per axis to its own box's unit cube). Pairs whose
   detection has no primitives are counted as ``missing_primitives``, not scored;
 * seconds per ``detect_fn`` call.
 
@@ -36,7 +37,7 @@ from ..types import Frame, Object3D
 from .ap import evaluate_detections, expand_class_hypotheses, is_ignored, thr_key
 from .box_metrics import aggregate_box_errors, pair_errors, segmentation_accuracy
 from .report import to_jsonable
-from .shape_metrics import shape_iou, surface_distance, to_box_frame
+from .shape_metrics import box_relative_iou, shape_iou, surface_distance, to_box_frame
 
 DetectFn = Callable[[Frame, "list[tuple[float, float, float, float, str]] | None"], "list[Object3D]"]
 
@@ -74,9 +75,13 @@ def _seg_gt_ids(det: Any, frame: Frame) -> np.ndarray | None:
     return flat[idx]
 
 
+#: per-pair shape metrics: camera frame, isotropic object frame, box-relative (IoU only)
+SHAPE_KEYS = ("iou_camera", "distance_camera", "iou_object", "distance_object", "iou_box")
+
+
 def _summarize_shape(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
     out: dict[str, Any] = {"n": len(records)}
-    for key in ("iou_camera", "distance_camera", "iou_object", "distance_object"):
+    for key in SHAPE_KEYS:
         out[key] = _stats([r[key] for r in records])
     return out
 
@@ -88,7 +93,7 @@ def _class_mean(records: Sequence[dict[str, Any]], classes: Sequence[str]) -> di
     per = [[r for r in records if r["class"] == c] for c in classes]
     per = [rs for rs in per if rs]
     out["n"], out["classes"] = sum(len(rs) for rs in per), len(per)
-    for key in ("iou_camera", "distance_camera", "iou_object", "distance_object"):
+    for key in SHAPE_KEYS:
         means = [_stats([r[key] for r in rs])["mean"] for rs in per]
         means = [m for m in means if np.isfinite(m)]
         out[key] = {"mean": float(np.mean(means)) if means else float("nan")}
@@ -215,6 +220,10 @@ def evaluate(
                     "distance_camera": surface_distance(prims, gt.parts, surface_samples, rng),
                     "iou_object": shape_iou(po, go, shape_resolution),
                     "distance_object": surface_distance(po, go, surface_samples, rng),
+                    "iou_box": box_relative_iou(
+                        prims, (det.center, det.rotation, det.size), gt.parts, (gt.center, gt.rotation, gt.size),
+                        shape_resolution,
+                    ),
                 }
                 shape_records.append(s)
                 rec.update({k: v for k, v in s.items() if k != "class"})
@@ -235,6 +244,8 @@ def evaluate(
             f"IoU: {shape_resolution}^3 voxel grid over the union bounds; surface distance: symmetric "
             f"chamfer of {surface_samples} surface samples per set over the GT corner-set diameter. "
             "Object frame: each set in its own box frame scaled to unit box diagonal. "
+            "Box-relative: each set in its own box scaled per axis to the unit cube (the box error "
+            "left out; the GT parts in any box score 1). "
             f"{missing} paired detections had no primitives (not scored)."
         ),
     }

