@@ -31,6 +31,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
                    help="network arithmetic (bf16: faster on CPUs with AMX / AVX512-BF16; auto: bf16 for 4 or "
                         "more frustums where the CPU has AMX)")
     p.add_argument("--weights", default=None, help="weights for network/pipeline/node (default: packaged)")
+    p.add_argument("--no-classifier", action="store_true", help="pipeline: without the proposal classifier")
+    p.add_argument("--no-refine", action="store_true", help="pipeline: without the class-given second pass")
     p.add_argument("--bag", default=str(Path(__file__).resolve().parents[1] / "bags" / "sample"))
     p.add_argument("--json", default=None, help="also write the results here")
 
@@ -42,6 +44,8 @@ def bench_pipeline(
     workers: int = 2,
     precision: str = "fp32",
     max_objects: int = 20,
+    classifier: bool = True,
+    refine: bool = True,
 ) -> dict:
     """Median / p95 ms per VGA frame of ``ShapeDetector.detect`` with GT boxes and with built-in
     proposals, then the built-in throughput with the node's two-thread pipeline."""
@@ -50,7 +54,7 @@ def bench_pipeline(
 
     det = ShapeDetector(
         weights=weights, score_threshold=0.0, num_threads=threads, workers=workers, precision=precision,
-        max_objects=max_objects,
+        max_objects=max_objects, classifier=classifier, refine=refine,
     )
     scenes = [generate_frame(10_000 + i) for i in range(frames)]
     out: dict[str, dict] = {}
@@ -70,13 +74,15 @@ def bench_pipeline(
             "fps_p50": float(1e3 / np.median(times)),
             "frustums_per_frame": float(np.mean(nobj)),
         }
-        for key in ("proposals_ms", "frustums_ms", "network_ms", "post_ms"):
+        for key in ("proposals_ms", "frustums_ms", "network_ms", "classifier_ms", "refine_ms", "post_ms"):
             res[key + "_p50"] = float(np.median([p.get(key, 0.0) for p in parts]))
         out[mode] = res
         print(
             f"pipeline[{mode}]: {res['ms_p50']:.1f} ms/frame p50 ({res['fps_p50']:.1f} fps), p95 {res['ms_p95']:.1f} ms, "
             f"{res['frustums_per_frame']:.1f} frustums/frame; proposals {res['proposals_ms_p50']:.1f} ms, "
-            f"frustums {res['frustums_ms_p50']:.1f} ms, network {res['network_ms_p50']:.1f} ms, post {res['post_ms_p50']:.1f} ms",
+            f"frustums {res['frustums_ms_p50']:.1f} ms, network {res['network_ms_p50']:.1f} ms, "
+            f"classifier {res['classifier_ms_p50']:.1f} ms, second pass {res['refine_ms_p50']:.1f} ms, "
+            f"post {res['post_ms_p50']:.1f} ms",
             flush=True,
         )
     # as the node runs it: two stages, each single-threaded (workers=1: the stages keep both
@@ -164,7 +170,8 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
     if target == "pipeline":
         return bench_pipeline(
             frames=args.frames, weights=args.weights, threads=args.threads, workers=args.workers,
-            precision=args.precision, max_objects=args.max_objects,
+            precision=args.precision, max_objects=args.max_objects, classifier=not args.no_classifier,
+            refine=not args.no_refine,
         )
     if target == "node":
         from .node_bench import bench_node

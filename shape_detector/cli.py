@@ -18,6 +18,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "replay": ("shape_detector.replay", "run the detector over a recorded bag, or --play it live"),
     "synth": ("shape_detector.synth.cli", "generate RGB-D scenes: dataset shards, sample bags, figures"),
     "train": ("shape_detector.training.cli", "train the frustum network on generated data"),
+    "train-classifier": ("shape_detector.training.classifier_cli",
+                         "train the proposal classifier on the network's built-in-proposal candidates"),
     "evaluate": ("shape_detector.evaluation.cli", "evaluate weights on a held-out generated set"),
     "bench": ("shape_detector.bench", "benchmarks that print numbers (synth, network, proposals, node)"),
     "config-path": ("shape_detector.cli", "print the path of a packaged config file"),

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +29,7 @@ from .primitive_snap import snap_primitives
 from .types import Object3D
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "default.pt"
+DEFAULT_CLASSIFIER = Path(__file__).resolve().parent / "weights" / "classifier.pt"
 
 
 @dataclass
@@ -68,6 +70,44 @@ def _parse_box(box: Any) -> tuple[tuple[float, float, float, float], str | None]
     return (x1, y1, x2, y2), (name if isinstance(name, str) and name in CLASS_TO_ID else None)
 
 
+def _load_classifier(spec: str | Path | bool):
+    """The proposal classifier for ``ShapeDetector(classifier=spec)``, or None."""
+    if spec is False or spec is None:
+        return None
+    path = DEFAULT_CLASSIFIER if spec is True else Path(spec)
+    if not path.is_file():
+        if spec is True:
+            warnings.warn(f"no packaged proposal classifier at {path}; the network's class head decides", stacklevel=3)
+            return None
+        raise FileNotFoundError(f"proposal classifier {path} not found")
+    from .model.classifier import load_classifier
+
+    return load_classifier(path)[0]
+
+
+def reclassify(classifier: Any, frame: PreparedFrame, preds: list) -> list:
+    """First-pass predictions of a frame's built-in proposals with the class, class
+    probabilities and score the proposal classifier gives them (class = the most probable
+    of the ten, score = its probability); frustums without valid points keep score 0."""
+    from dataclasses import replace
+
+    from .classes import CLASSES
+    from .model.classifier import frame_inputs
+
+    h, w = frame.depth.shape
+    pts, glob = frame_inputs(
+        frame.frustums, preds, [b for b, _, _ in frame.boxes], [s for _, _, s in frame.boxes], (w, h),
+        frame.floor_height, classifier.config,
+    )
+    probs = classifier.probabilities(pts, glob)
+    out = []
+    for p, pr in zip(preds, probs):
+        k = int(np.argmax(pr[: len(CLASSES)]))
+        score = float(pr[k]) if p.num_points_valid > 0 else 0.0
+        out.append(replace(p, class_name=CLASSES[k], class_probs=pr, score=score))
+    return out
+
+
 class ShapeDetector:
     """Detect furniture with amodal 3D boxes and cuboid primitives in one RGB-D frame.
 
@@ -100,6 +140,19 @@ class ShapeDetector:
     with the ~20 built-in proposals per frame it gained 0.9 points for 2x the network time.
     ``snap_primitives``: turn nearly box-aligned primitives to the box axes and clip them to
     the box (see :mod:`shape_detector.primitive_snap`).
+    ``classifier``: the proposal classifier (:mod:`shape_detector.model.classifier`) that
+    re-decides the class and score of built-in proposals after the first pass, from the
+    frustum, its height above the measured floor, the 2D box and the first pass's output:
+    True = the packaged ``weights/classifier.pt`` (skipped with a warning if missing),
+    False = off (the network's class head decides), or a path.
+    ``refine``: a class-given second pass for class-agnostic frustums (built-in proposals,
+    or given boxes without a class) whose score (the classifier's, else the first pass's)
+    reaches ``refine_min_score``: they run again with their decided class as the
+    one-hot, which gives the box that class's size cluster and prior (see
+    :meth:`FrustumPredictor.refine <shape_detector.model.predictor.FrustumPredictor.refine>`).
+    Validation (200 frames), built-in proposals, mAP@0.25 / @0.5: 67.0 / 44.8 without
+    either; 69.5 / 47.2 with the second pass; 75.3 / 48.3 with the classifier; 77.0 /
+    54.1 with both (the defaults).
     """
 
     def __init__(
@@ -118,6 +171,9 @@ class ShapeDetector:
         precision: str = "fp32",
         mirror_tta: str = "given",
         snap_primitives: bool = True,
+        refine: bool = True,
+        refine_min_score: float = 0.2,
+        classifier: str | Path | bool = True,
     ) -> None:
         from .model.predictor import FrustumPredictor
 
@@ -152,6 +208,9 @@ class ShapeDetector:
             raise ValueError(f"mirror_tta must be 'given', 'always' or 'never', got {mirror_tta!r}")
         self.mirror_tta = mirror_tta
         self.snap_primitives = bool(snap_primitives)
+        self.refine = bool(refine)
+        self.refine_min_score = float(refine_min_score)
+        self.classifier = _load_classifier(classifier)
 
     # -- stages -----------------------------------------------------------------------
     def _get_proposer(self):
@@ -254,17 +313,28 @@ class ShapeDetector:
         )
 
     def finish(self, frame: PreparedFrame) -> list[Object3D]:
-        """Network and post-processing (point fit, floor contact, 3D NMS for built-in
-        proposals, primitive snapping) of a frame from :meth:`prepare`: its objects, sorted
-        by score. Sets ``last_up``, ``last_up_confidence``, ``last_floor_height`` and
-        ``last_timing``."""
+        """Network (first pass; for built-in proposals the proposal classifier and the
+        class-given second pass) and post-processing (point fit, floor contact, 3D NMS for
+        built-in proposals, primitive snapping) of a frame from :meth:`prepare`: its
+        objects, sorted by score. Sets ``last_up``, ``last_up_confidence``,
+        ``last_floor_height`` and ``last_timing`` (milliseconds per stage: ``network_ms``
+        is the first pass, ``classifier_ms`` and ``refine_ms`` the other two)."""
         t3 = time.perf_counter()
         boxes = frame.boxes
-        preds = self.predictor.predict(
-            frame.frustums,
-            [CLASS_TO_ID[c] if c is not None else None for _, c, _ in boxes],
-            mirror=self.mirror_tta == "always" or (self.mirror_tta == "given" and frame.given_boxes),
-        )
+        class_ids = [CLASS_TO_ID[c] if c is not None else None for _, c, _ in boxes]
+        mirror = self.mirror_tta == "always" or (self.mirror_tta == "given" and frame.given_boxes)
+        preds = self.predictor.predict(frame.frustums, class_ids, mirror=mirror)
+        t_net = time.perf_counter()
+        agnostic = [i for i, c in enumerate(class_ids) if c is None]
+        if self.classifier is not None and not frame.given_boxes and agnostic:
+            preds = reclassify(self.classifier, frame, preds)
+        t_cls = time.perf_counter()
+        if self.refine and agnostic:
+            second = self.predictor.refine(
+                [frame.frustums[i] for i in agnostic], [preds[i] for i in agnostic], mirror, self.refine_min_score
+            )
+            for i, p in zip(agnostic, second):
+                preds[i] = p
         t4 = time.perf_counter()
         objects: list[Object3D] = []
         for (box, _, _), fr, pred in zip(boxes, frame.frustums, preds):
@@ -295,7 +365,10 @@ class ShapeDetector:
         self.last_up, self.last_up_confidence = frame.up, frame.up_confidence
         self.last_floor_height = frame.floor_height
         timing = dict(frame.timing)
-        timing.update(network_ms=1e3 * (t4 - t3), post_ms=1e3 * (t5 - t4))
+        timing.update(
+            network_ms=1e3 * (t_net - t3), classifier_ms=1e3 * (t_cls - t_net), refine_ms=1e3 * (t4 - t_cls),
+            post_ms=1e3 * (t5 - t4),
+        )
         timing["total_ms"] = sum(timing.values())
         timing["num_frustums"] = float(len(boxes))
         self.last_timing = timing

@@ -56,6 +56,14 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "nms_decay": (0.1, "built-in proposals: score factor of the boxes 3D NMS suppresses, kept after the others "
                   "(0 = drop them; with score_threshold 0.3 none is published)", False,
                   {"floating_point_range": [FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)]}),
+    "refine": (True, "built-in proposals: run each frustum scored >= refine_min_score a second time with its "
+               "predicted class given (that class's box prior)", False, {}),
+    "refine_min_score": (0.2, "score (after the proposal classifier) a built-in proposal needs for the class-given "
+                         "second pass", False,
+                         {"floating_point_range": [FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)]}),
+    "classifier": ("", "proposal classifier file that re-decides the class of built-in proposals; empty = the "
+                   "packaged one, 'none' = off (the network's class head decides) (detector reloaded when "
+                   "changed)", False, {}),
     "workers": (1, "threads the network splits a frame's frustums over (single-threaded ops each; 1 = serial; "
                 "2 is faster with pipeline false, slower with it)", True,
                 {"integer_range": [IntegerRange(from_value=1, to_value=64, step=1)]}),
@@ -102,7 +110,10 @@ _CHOICES = {
     "up_source": ("estimate", "fixed", "imu"),
     "qos": ("sensor_data", "reliable"),
 }
-_REBUILD = ("weights", "device")
+_REBUILD = ("weights", "device", "classifier")
+#: parameters the node sets on a built detector that has the attribute (custom factories
+#: need not take them as constructor arguments); dynamic
+_DETECTOR_ATTRS = ("score_threshold", "max_objects", "nms_decay", "refine", "refine_min_score")
 
 
 @dataclass
@@ -255,6 +266,8 @@ class DetectorNode(Node):
             # external 2D boxes come with every frame: no built-in proposer needed
             proposals="none" if self.external else "geometric",
         )
+        if self.p["classifier"] != "":
+            kwargs["classifier"] = False if self.p["classifier"] == "none" else self.p["classifier"]
         factory = self._factory
         if factory is None and self.p["detector_factory"]:
             factory = load_factory(self.p["detector_factory"])
@@ -264,8 +277,9 @@ class DetectorNode(Node):
             factory = ShapeDetector
         t = time.perf_counter()
         det = factory(**kwargs)
-        if hasattr(det, "nms_decay"):  # not a constructor argument: custom factories need not take it
-            det.nms_decay = float(self.p["nms_decay"])
+        for name in ("nms_decay", "refine", "refine_min_score"):  # not constructor arguments: custom
+            if hasattr(det, name):  # factories need not take them
+                setattr(det, name, type(getattr(det, name))(self.p[name]))
         if hasattr(det, "warm_up"):  # first-call costs now, not on the first camera frame
             try:
                 det.warm_up()
@@ -303,7 +317,7 @@ class DetectorNode(Node):
                 self.p[prm.name] = prm.value
                 if prm.name in ("sync_slop", "sync_queue_size"):
                     self.sync.configure(queue_size=self.p["sync_queue_size"], slop=self.p["sync_slop"])
-                elif prm.name in ("score_threshold", "max_objects", "nms_decay"):
+                elif prm.name in _DETECTOR_ATTRS:
                     if hasattr(self.detector, prm.name):
                         setattr(self.detector, prm.name, prm.value)
                     else:

@@ -517,16 +517,24 @@ def make_detector(
     factory: str | None = None,
     workers: int = 2,
     precision: str = "fp32",
+    classifier: str | None = None,
+    refine: bool = True,
 ) -> Any:
     """The detector for the CLI and the node: ``ShapeDetector`` or ``factory(**same kwargs)``.
 
     ``proposals``: 'geometric' (built-in) or 'external' (2D boxes come with every frame;
-    ShapeDetector is then built with ``proposals='none'``)."""
+    ShapeDetector is then built with ``proposals='none'``). ``classifier``: None = the
+    packaged proposal classifier, 'none' = off, else a path; ``refine``: the class-given
+    second pass (these two are passed to a factory only when not the defaults)."""
     if proposals not in ("geometric", "external", "none"):
         raise ValueError(f"proposals must be 'geometric' or 'external', got {proposals!r}")
-    kwargs = dict(weights=weights or None, device=device, score_threshold=score_threshold,
-                  max_objects=max_objects, proposals="none" if proposals == "external" else proposals,
-                  workers=workers, precision=precision)
+    kwargs: dict[str, Any] = dict(weights=weights or None, device=device, score_threshold=score_threshold,
+                                  max_objects=max_objects, proposals="none" if proposals == "external" else proposals,
+                                  workers=workers, precision=precision)
+    if classifier:
+        kwargs["classifier"] = False if classifier == "none" else classifier
+    if not refine:
+        kwargs["refine"] = False
     if factory:
         return load_factory(factory)(**kwargs)
     from .detector import ShapeDetector
@@ -560,6 +568,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     d.add_argument("--workers", type=int, default=2, help="threads the network splits a frame's frustums over (default 2)")
     d.add_argument("--proposals", choices=("geometric", "external"), default=None,
                    help="2D proposal source (default: external when --detections2d is given)")
+    d.add_argument("--classifier", default=None, metavar="PATH|none",
+                   help="proposal classifier for built-in proposals (default: the packaged one; none = off)")
+    d.add_argument("--no-refine", action="store_true", help="no class-given second pass for built-in proposals")
     d.add_argument("--detector", metavar="MODULE:CALLABLE", help="use another detector factory (tests, plugins)")
     s = p.add_argument_group("frames")
     s.add_argument("--slop", type=float, default=0.02, help="synchroniser slop, seconds (default 0.02)")
@@ -640,7 +651,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         detector = make_detector(args.weights, args.device, args.score_threshold, args.max_objects, proposals,
                                  args.detector, workers=args.workers,
-                                 precision=args.precision)
+                                 precision=args.precision, classifier=args.classifier, refine=not args.no_refine)
     except Exception as e:  # noqa: BLE001
         print(f"shape-detector replay: cannot create the detector: {type(e).__name__}: {e}", file=sys.stderr)
         return 1

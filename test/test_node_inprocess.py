@@ -33,6 +33,8 @@ class FakeDetector:
         self.score_threshold = 0.3
         self.max_objects = 20
         self.nms_decay = 0.1
+        self.refine = True
+        self.refine_min_score = 0.1
 
     def detect(self, rgb, depth, K, boxes2d=None, up=None):
         self.calls.append({"shape": rgb.shape, "up": up, "t": time.monotonic()})
@@ -185,6 +187,9 @@ def test_parameters_dynamic_and_validated(harness):
     assert all(r.successful for r in res) and det.score_threshold == 0.55 and det.max_objects == 3
     assert n.set_parameters([Parameter("nms_decay", value=0.0)])[0].successful and det.nms_decay == 0.0
     assert not n.set_parameters([Parameter("nms_decay", value=1.5)])[0].successful  # out of range
+    res = n.set_parameters([Parameter("refine", value=False), Parameter("refine_min_score", value=0.25)])
+    assert all(r.successful for r in res) and det.refine is False and det.refine_min_score == 0.25
+    assert not n.set_parameters([Parameter("refine_min_score", value=-0.1)])[0].successful  # out of range
     res = n.set_parameters([Parameter("sync_slop", value=0.001), Parameter("sync_queue_size", value=4)])
     assert all(r.successful for r in res) and n.sync.slop_ns == MS and n.sync.queue_size == 4
     assert not n.set_parameters([Parameter("up_source", value="gyro")])[0].successful
@@ -306,3 +311,21 @@ def test_pipeline_detector_failure_in_second_stage_publishes_empty_and_goes_on(h
     assert len(h.wait_markers(2)) == 2 and len(h.markers[1].markers) == 4
     st = h.node.get_stats()
     assert st["detector_errors"] == 1 and st["processed"] == 2 and st.get("errors", 0) == 0
+
+
+def test_classifier_and_second_pass_parameters_reach_the_detector(ros_context):
+    built = []
+
+    def factory(**kwargs):
+        built.append(kwargs)
+        return FakeDetector()
+
+    for value, expect in (("", None), ("none", False), ("/some/classifier.pt", "/some/classifier.pt")):
+        params = [Parameter("classifier", value=value), Parameter("refine", value=False),
+                  Parameter("refine_min_score", value=0.4)]
+        node = DetectorNode("sd_factory", context=ros_context, detector_factory=factory, parameter_overrides=params)
+        try:
+            assert built[-1].get("classifier", None) == expect
+            assert node.detector.refine is False and node.detector.refine_min_score == 0.4
+        finally:
+            node.destroy_node()

@@ -44,6 +44,13 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nms-decay", type=float, default=0.1,
                    help="built-in proposals: keep boxes 3D NMS suppresses at this fraction of their score "
                    "(Soft-NMS; 0 = drop them; default 0.1)")
+    p.add_argument("--classifier", default=None, metavar="PATH|none",
+                   help="proposal classifier for built-in proposals (default: the packaged one; none = off)")
+    p.add_argument("--no-refine", action="store_true",
+                   help="built-in proposals: no class-given second pass")
+    p.add_argument("--refine-min-score", type=float, default=0.2,
+                   help="score (after the proposal classifier) a built-in proposal needs for the second pass "
+                        "(default 0.2)")
     p.add_argument("--class-hypotheses", type=int, default=1,
                    help="also report AP with each detection counted for its top-K classes (VoteNet's "
                    "per-class proposals; detected boxes only; default 1 = off)")
@@ -78,7 +85,10 @@ def main(args: argparse.Namespace) -> int:
         detector = ShapeDetector(weights=args.weights, device=args.device, score_threshold=args.score_threshold,
                                  floor_snap=args.floor_snap, point_fit=args.point_fit,
                                  mirror_tta=args.mirror_tta, snap_primitives=not args.no_snap_primitives,
-                                 nms_decay=args.nms_decay, precision=args.precision)
+                                 nms_decay=args.nms_decay, precision=args.precision,
+                                 classifier=(True if args.classifier is None else
+                                             False if args.classifier == "none" else args.classifier),
+                                 refine=not args.no_refine, refine_min_score=args.refine_min_score)
     except FileNotFoundError as e:
         print(f"shape-detector evaluate: {e}", file=sys.stderr)
         return 2
@@ -115,6 +125,8 @@ def main(args: argparse.Namespace) -> int:
             "snap_primitives": not args.no_snap_primitives,
             "mirror_tta": args.mirror_tta,
             "nms_decay": args.nms_decay,
+            "classifier": (args.classifier or "packaged") if getattr(detector, "classifier", None) is not None else "off",
+            "refine": "off" if args.no_refine else f"score >= {args.refine_min_score:g}",
             "precision": args.precision,
             "up": "estimated" if args.estimate_up else "ground truth",
         }

@@ -125,7 +125,7 @@ def box_relative_iou(
 
     ``pred_box`` / ``gt_box``: ``(centre (3,), rotation (3,3) columns = box axes, full size
     (3,))`` in the frame of the cuboids. Each set is mapped to its box's unit cube per axis
-    (``u = R^T (p - c) / size``); the grid is ``resolution``\ :sup:`3` voxel centres over the
+    (``u = R^T (p - c) / size``); the grid is ``resolution ** 3`` voxel centres over the
     bounding box of both sets' corners in those coordinates. The point test maps each voxel
     centre back into the set's own frame, so primitives that are not box-aligned need no
     special case. Same NaN / 0 conventions as :func:`shape_iou`.

@@ -1,8 +1,9 @@
 """Network benchmark: ms per frame for a batched forward of 1, 5, 10 frustums.
 
 ``bench_network`` times :meth:`FrustumPredictor.predict` (one batched forward + decoding
-+ primitive pruning) on synthetic frustums; the network's cost does not depend on the
-point values, so random points are fine. ``shape-detector bench network`` (the bench
++ primitive pruning) on synthetic frustums, then the network work of built-in proposals
+(first pass, proposal classifier, class-given second pass); the network's cost does not
+depend on the point values, so random points are fine. ``shape-detector bench network`` (the bench
 module) calls it.
 """
 
@@ -94,7 +95,9 @@ def bench_network(
                 f"{1000.0 / med:6.1f} frames/s  cpu {results[int(c)]['cpu_ms']:.1f} ms  "
                 f"[{pred.device}, {torch.get_num_threads()} threads, {pred.workers} workers, {n_pts} pts, {pred.precision}]"
             )
+    builtin = _bench_builtin_path(pred, counts, n_pts, rng, repeats, warmup, verbose)
     return {
+        "builtin_path": builtin,
         "device": str(pred.device),
         "num_threads": torch.get_num_threads(),
         "workers": pred.workers,
@@ -102,6 +105,41 @@ def bench_network(
         "num_points": n_pts,
         "results": results,
     }
+
+
+def _bench_builtin_path(pred, counts, n_pts: int, rng, repeats: int, warmup: int, verbose: bool) -> dict:
+    """ms per frame of the network work on built-in proposals: the class-agnostic first pass,
+    the packaged proposal classifier and the class-given second pass of every frustum (the
+    detector's worst case: ``refine_min_score`` 0). Empty when no classifier is packaged."""
+    from ..detector import DEFAULT_CLASSIFIER
+    from .classifier import frame_inputs, load_classifier
+
+    if not DEFAULT_CLASSIFIER.is_file():
+        return {}
+    clf = load_classifier(DEFAULT_CLASSIFIER)[0]
+    out = {}
+    for c in counts:
+        fr = _fake_frustums(int(c), n_pts, rng)
+
+        def run() -> None:
+            first = pred.predict(fr, [None] * len(fr))
+            clf.probabilities(*frame_inputs(fr, first, [(0, 0, 100, 100)] * len(fr), [1.0] * len(fr), (640, 480), 1.3,
+                                            clf.config))
+            pred.refine(fr, first)
+
+        for _ in range(warmup):
+            run()
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            run()
+            times.append((time.perf_counter() - t0) * 1000.0)
+        med = float(np.median(times))
+        out[int(c)] = {"median_ms": med, "fps": 1000.0 / med}
+        if verbose:
+            print(f"network, built-in path (first pass + classifier + class-given pass): {c:3d} objects/frame  "
+                  f"{med:7.2f} ms/frame  {1000.0 / med:6.1f} frames/s")
+    return out
 
 
 if __name__ == "__main__":  # pragma: no cover

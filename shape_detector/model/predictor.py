@@ -18,14 +18,14 @@ foreground points as score. Frustums with no valid point get score 0.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 import torch
 
-from ..classes import CLASSES
+from ..classes import CLASS_TO_ID, CLASSES
 from ..frustum import Frustum
 from ..geometry import rot_z, stretch_cuboids, wrap_angle
 from ..types import Cuboid
@@ -140,6 +140,14 @@ def merge_mirrored(arr: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     out["prim_rotation"] = base_r
     out["prim_center"], out["prim_size"] = stretch_cuboids(base_c, base_s, base_r, ratio[:, None, :])
     return out
+
+
+def refined_score(class_prob: float, objectness: float) -> float:
+    """Score of a class-agnostic detection after its class-given second pass
+    (:meth:`FrustumPredictor.refine`): the geometric mean of the first pass's probability of
+    its class and the second pass's objectness (1 - background probability, given that
+    class)."""
+    return float(np.sqrt(max(class_prob, 0.0) * max(objectness, 0.0)))
 
 
 class FrustumPredictor:
@@ -284,6 +292,40 @@ class FrustumPredictor:
             for j, i in enumerate(idx):
                 results[i] = self._decode_one(frustums[i], class_ids[i], arr, j)
         return results  # type: ignore[return-value]
+
+    def refine(
+        self,
+        frustums: Sequence[Frustum],
+        first: Sequence[FrustumPrediction],
+        mirror: bool = False,
+        min_score: float = 0.0,
+    ) -> list[FrustumPrediction]:
+        """Class-given second pass for class-agnostic predictions ``first`` of ``frustums``.
+
+        Each frustum whose first-pass score is at least ``min_score`` runs again with its
+        predicted class as the one-hot (the input the network gets with external 2D
+        detections, which gives it that class's size cluster and box prior): box,
+        segmentation and primitives come from this pass, the class and its probabilities
+        from ``first``. The score is the geometric mean of the first pass's class
+        probability and the second pass's objectness, :func:`refined_score`. The others,
+        those whose frustum has no valid point, and all of them when the weights have no
+        class head, are returned unchanged.
+        """
+        if len(first) != len(frustums):
+            raise ValueError("first must match frustums")
+        idx = [
+            i
+            for i, p in enumerate(first)
+            if p.class_name in CLASS_TO_ID and p.num_points_valid > 0 and p.score >= min_score
+        ]
+        out = list(first)
+        if not idx or not self.has_class_head:
+            return out
+        second = self.predict([frustums[i] for i in idx], [CLASS_TO_ID[first[i].class_name] for i in idx], mirror)
+        for i, q in zip(idx, second):
+            p = first[i]
+            out[i] = replace(q, class_name=p.class_name, class_probs=p.class_probs, score=refined_score(p.score, q.objectness))
+        return out
 
     def _forward_parallel(self, pts: np.ndarray, oh: np.ndarray) -> dict[str, np.ndarray]:
         """:meth:`forward_arrays`, split over ``self.workers`` threads for large batches."""

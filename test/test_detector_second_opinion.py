@@ -1,0 +1,110 @@
+"""Built-in proposals: the proposal classifier's re-decision and the class-given second pass."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from shape_detector import ShapeDetector
+from shape_detector.classes import CLASS_TO_ID, CLASSES, NUM_CLASSES
+from shape_detector.model.classifier import ClassifierConfig, ProposalClassifier, save_classifier
+from shape_detector.model.predictor import refined_score
+from shape_detector.proposals.evaluate import box_part, chair_parts, toy_scene, up_from_pitch_roll
+
+
+@pytest.fixture(scope="module")
+def scene():
+    parts = [box_part(0.25, 2.6, 0.53, 1.0, 1.17, yaw=0.35)]
+    chair = chair_parts(-0.9, 2.2, yaw=0.5)
+    return toy_scene([("dresser", parts), ("chair", chair)], up=up_from_pitch_roll(12.0), cam_height=1.3, seed=3)
+
+
+class FixedClassifier:
+    """Stands in for a trained classifier: every candidate is 'bed' with probability 0.6."""
+
+    config = ClassifierConfig()
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    def probabilities(self, points, globals_):
+        self.calls += 1
+        assert points.shape[0] == globals_.shape[0] >= 1
+        p = np.full((len(points), NUM_CLASSES + 1), 0.4 / NUM_CLASSES)
+        p[:, CLASS_TO_ID["bed"]] = 0.6
+        return p
+
+
+def test_classifier_decides_class_and_score_of_builtin_proposals(scene):
+    det = ShapeDetector(score_threshold=0.0, classifier=False, refine=False)
+    det.classifier = FixedClassifier()
+    objects = det.detect(scene.rgb, scene.depth, scene.K)
+    assert objects and det.classifier.calls == 1
+    kept = [o for o in objects if o.score > 0.1]  # Soft-NMS copies carry a tenth of the score
+    assert kept and all(o.class_name == "bed" and o.score == pytest.approx(0.6) for o in kept)
+    assert all(o.class_scores[CLASS_TO_ID["bed"]] == pytest.approx(0.6) for o in kept)
+    # given boxes keep the network's decision: the classifier is for built-in proposals only
+    det.detect(scene.rgb, scene.depth, scene.K, boxes2d=[(*scene.objects[0].box2d, None)])
+    assert det.classifier.calls == 1
+
+
+def test_second_pass_runs_the_predicted_class_given(scene):
+    det = ShapeDetector(score_threshold=0.0, classifier=False, refine=False)
+    prep = det.prepare(scene.rgb, scene.depth, scene.K)
+    pred = det.predictor
+    first = pred.predict(prep.frustums, [None] * len(prep.frustums))
+    second = pred.refine(prep.frustums, first, min_score=0.0)
+    given = pred.predict(prep.frustums, [CLASS_TO_ID[p.class_name] for p in first])
+    for f, s, g in zip(first, second, given):
+        assert s.class_name == f.class_name
+        np.testing.assert_array_equal(s.class_probs, f.class_probs)  # the class is the first pass's
+        np.testing.assert_allclose(s.center, g.center)  # the box is the class-given pass's
+        np.testing.assert_allclose(s.size, g.size)
+        assert s.score == pytest.approx(np.sqrt(f.score * g.objectness))
+    # below min_score a prediction is returned unchanged
+    top = max(p.score for p in first)
+    kept = pred.refine(prep.frustums, first, min_score=top + 1e-6)
+    assert all(k is f for k, f in zip(kept, first))
+
+
+def test_refine_option_changes_builtin_boxes_only(scene):
+    on = ShapeDetector(score_threshold=0.0, classifier=False, refine=True, refine_min_score=0.0)
+    off = ShapeDetector(score_threshold=0.0, classifier=False, refine=False)
+    a, b = on.detect(scene.rgb, scene.depth, scene.K), off.detect(scene.rgb, scene.depth, scene.K)
+    assert len(a) >= 1 and len(b) >= 1
+    centres_a = np.array(sorted(tuple(o.center.round(6)) for o in a))
+    centres_b = np.array(sorted(tuple(o.center.round(6)) for o in b))
+    assert centres_a.shape != centres_b.shape or not np.allclose(centres_a, centres_b)
+    box = [(*scene.objects[0].box2d, "dresser")]  # a class given: no second pass, identical results
+    ga, gb = on.detect(scene.rgb, scene.depth, scene.K, boxes2d=box), off.detect(scene.rgb, scene.depth, scene.K, boxes2d=box)
+    np.testing.assert_allclose(ga[0].center, gb[0].center)
+
+
+def test_refined_score_is_a_geometric_mean():
+    assert refined_score(0.81, 0.25) == pytest.approx(0.45)
+    assert refined_score(0.5, 0.0) == 0.0 and refined_score(-0.1, 0.5) == 0.0
+
+
+def test_classifier_file_loads_and_missing_file_raises(tmp_path, scene):
+    torch.manual_seed(0)
+    path = tmp_path / "c.pt"
+    save_classifier(ProposalClassifier(ClassifierConfig(widths=(8, 16), fc=(16,))).eval(), path)
+    det = ShapeDetector(score_threshold=0.0, classifier=path)
+    objects = det.detect(scene.rgb, scene.depth, scene.K)
+    assert all(o.class_name in CLASSES and 0.0 <= o.score <= 1.0 for o in objects)
+    with pytest.raises(FileNotFoundError, match="classifier"):
+        ShapeDetector(classifier=tmp_path / "missing.pt")
+
+
+def test_reclassify_keeps_empty_frustums_at_zero(scene):
+    from shape_detector.detector import reclassify
+
+    det = ShapeDetector(score_threshold=0.0, classifier=False, refine=False)
+    prep = det.prepare(scene.rgb, scene.depth, scene.K)
+    first = det.predictor.predict(prep.frustums, [None] * len(prep.frustums))
+    first[0] = replace(first[0], num_points_valid=0)
+    out = reclassify(FixedClassifier(), prep, first)
+    assert out[0].score == 0.0 and out[1].score == pytest.approx(0.6)
