@@ -41,7 +41,8 @@ class PreparedFrame:
     the camera's height above the floor (m, None: not measured); ``boxes`` the
     ``(box2d, class_name or None, proposal score)`` of the frustums kept (those with valid
     depth), ``frustums`` their points; ``given_boxes``: the boxes came from the caller;
-    ``timing`` the stages' milliseconds so far.
+    ``timing`` the stages' milliseconds so far; ``first`` the network's first pass (set by
+    :meth:`ShapeDetector.first_pass`, else None).
     """
 
     depth: np.ndarray
@@ -53,6 +54,8 @@ class PreparedFrame:
     frustums: list[Frustum]
     given_boxes: bool
     timing: dict[str, float] = field(default_factory=dict)
+    #: the network's first-pass predictions once :meth:`ShapeDetector.first_pass` ran
+    first: list | None = None
 
 
 def _parse_box(box: Any) -> tuple[tuple[float, float, float, float], str | None]:
@@ -68,6 +71,27 @@ def _parse_box(box: Any) -> tuple[tuple[float, float, float, float], str | None]
     if not np.all(np.isfinite([x1, y1, x2, y2])):
         raise ValueError(f"2D box has non-finite coordinates: {box!r}")
     return (x1, y1, x2, y2), (name if isinstance(name, str) and name in CLASS_TO_ID else None)
+
+
+#: timing keys (ms) of the stages before the network, the first pass, and what follows it
+_BEFORE_KEYS = ("inputs_ms", "proposals_ms", "frustums_ms")
+_AFTER_KEYS = ("classifier_ms", "refine_ms", "post_ms")
+
+
+def first_pass_early(timing: dict[str, float] | None, margin: float = 0.1) -> bool:
+    """Whether a two-stage pipeline (one thread :meth:`ShapeDetector.prepare`, the other
+    :meth:`ShapeDetector.finish`) is faster with the network's first pass moved into the
+    first stage, judged from a frame's ``last_timing`` (ms): ``a`` before the network,
+    ``n`` the first pass, ``b`` after it; the pipeline runs at the pace of its slower
+    stage, ``max(a, n + b)`` or ``max(a + n, b)``; the first pass moves only when that
+    shortens the slower stage by more than ``margin`` (10%), so near balance the split does
+    not flip from frame to frame. False without timings."""
+    if not timing or "network_ms" not in timing:
+        return False
+    a = sum(float(timing.get(k, 0.0)) for k in _BEFORE_KEYS)
+    n = float(timing["network_ms"])
+    b = sum(float(timing.get(k, 0.0)) for k in _AFTER_KEYS)
+    return max(a + n, b) < (1.0 - margin) * max(a, n + b)
 
 
 def _load_classifier(spec: str | Path | bool):
@@ -160,7 +184,7 @@ class ShapeDetector:
         weights: str | Path | None = None,
         device: str = "cpu",
         score_threshold: float = 0.3,
-        max_objects: int = 20,
+        max_objects: int = 25,
         proposals: str = "geometric",
         nms_iou: float = 0.25,
         nms_decay: float = 0.1,
@@ -172,7 +196,7 @@ class ShapeDetector:
         mirror_tta: str = "given",
         snap_primitives: bool = True,
         refine: bool = True,
-        refine_min_score: float = 0.2,
+        refine_min_score: float = 0.3,
         classifier: str | Path | bool = True,
     ) -> None:
         from .model.predictor import FrustumPredictor
@@ -312,6 +336,21 @@ class ShapeDetector:
             timing={"inputs_ms": 1e3 * (t1 - t0), "proposals_ms": 1e3 * (t2 - t1), "frustums_ms": 1e3 * (t3 - t2)},
         )
 
+    def _mirror(self, frame: PreparedFrame) -> bool:
+        return self.mirror_tta == "always" or (self.mirror_tta == "given" and frame.given_boxes)
+
+    def first_pass(self, frame: PreparedFrame) -> PreparedFrame:
+        """The network's first pass over a prepared frame's frustums (``frame.first``; its
+        time in ``frame.timing["network_ms"]``), which :meth:`finish` otherwise runs itself.
+        The node's first stage calls it after :meth:`prepare` when the two stages are
+        lopsided (``pipeline_split="network"``). Reads only the weights: safe beside a
+        :meth:`finish` of another frame. Returns ``frame``."""
+        t0 = time.perf_counter()
+        class_ids = [CLASS_TO_ID[c] if c is not None else None for _, c, _ in frame.boxes]
+        frame.first = self.predictor.predict(frame.frustums, class_ids, mirror=self._mirror(frame))
+        frame.timing["network_ms"] = 1e3 * (time.perf_counter() - t0)
+        return frame
+
     def finish(self, frame: PreparedFrame) -> list[Object3D]:
         """Network (first pass; for built-in proposals the proposal classifier and the
         class-given second pass) and post-processing (point fit, floor contact, 3D NMS for
@@ -319,12 +358,13 @@ class ShapeDetector:
         objects, sorted by score. Sets ``last_up``, ``last_up_confidence``,
         ``last_floor_height`` and ``last_timing`` (milliseconds per stage: ``network_ms``
         is the first pass, ``classifier_ms`` and ``refine_ms`` the other two)."""
-        t3 = time.perf_counter()
+        if frame.first is None:
+            self.first_pass(frame)
+        t_net = time.perf_counter()
         boxes = frame.boxes
         class_ids = [CLASS_TO_ID[c] if c is not None else None for _, c, _ in boxes]
-        mirror = self.mirror_tta == "always" or (self.mirror_tta == "given" and frame.given_boxes)
-        preds = self.predictor.predict(frame.frustums, class_ids, mirror=mirror)
-        t_net = time.perf_counter()
+        mirror = self._mirror(frame)
+        preds = list(frame.first or [])
         agnostic = [i for i, c in enumerate(class_ids) if c is None]
         if self.classifier is not None and not frame.given_boxes and agnostic:
             preds = reclassify(self.classifier, frame, preds)
@@ -365,10 +405,7 @@ class ShapeDetector:
         self.last_up, self.last_up_confidence = frame.up, frame.up_confidence
         self.last_floor_height = frame.floor_height
         timing = dict(frame.timing)
-        timing.update(
-            network_ms=1e3 * (t_net - t3), classifier_ms=1e3 * (t_cls - t_net), refine_ms=1e3 * (t4 - t_cls),
-            post_ms=1e3 * (t5 - t4),
-        )
+        timing.update(classifier_ms=1e3 * (t_cls - t_net), refine_ms=1e3 * (t4 - t_cls), post_ms=1e3 * (t5 - t4))
         timing["total_ms"] = sum(timing.values())
         timing["num_frustums"] = float(len(boxes))
         self.last_timing = timing

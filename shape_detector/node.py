@@ -17,7 +17,8 @@ thread running the detector, so the node never falls behind: a newer set replace
 yet processed (counted as dropped). With ``pipeline`` (default) the worker is two threads:
 the first checks the input and runs the detector's ``prepare`` (gravity, proposals,
 frustums) on frame N+1 while the second runs ``finish`` (network, post-processing) on
-frame N and publishes. The first takes a new frame only when the second has taken the
+frame N and publishes; the network's first pass moves to the first thread when that
+balances the two better (``pipeline_split``). The first takes a new frame only when the second has taken the
 last one, so output stays in input order and a frame waits for at most one other.
 
 Bad input (wrong encodings, mismatched sizes, missing or zero camera_info, NaN depth,
@@ -51,7 +52,8 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "device": ("cpu", "torch device: cpu, cuda, cuda:0 ... (detector reloaded when changed)", False, {}),
     "score_threshold": (0.3, "minimum detection score", False,
                         {"floating_point_range": [FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)]}),
-    "max_objects": (20, "maximum objects per frame", False,
+    "max_objects": (10, "built-in proposals (frustums) per frame, best proposer score first: the speed knob "
+                    "(10: real time on 2 cores; ShapeDetector and the offline tools use 25, the accuracy setting)", False,
                     {"integer_range": [IntegerRange(from_value=1, to_value=1000, step=1)]}),
     "nms_decay": (0.1, "built-in proposals: score factor of the boxes 3D NMS suppresses, kept after the others "
                   "(0 = drop them; with score_threshold 0.3 none is published)", False,
@@ -70,6 +72,9 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "pipeline": (True, "two worker threads: the next frame's gravity, proposals and frustums run while the "
                  "network finishes the current one (higher throughput, output in input order); false = one thread",
                  True, {}),
+    "pipeline_split": ("auto", "with pipeline: where the network's first pass runs: 'prepare' (second thread, "
+                       "with the rest of the network), 'network' (first thread, after prepare) or 'auto' (whichever "
+                       "balances the two threads better, judged from the last frame's stage times)", True, {}),
     "precision": ("auto", "network arithmetic: 'auto' (bfloat16 for 4 or more frustums on CPUs with AMX, "
                   "else fp32), 'fp32' or 'bf16' (faster with many frustums on AMX / AVX512-BF16 CPUs, "
                   "much slower without)", True, {}),
@@ -105,6 +110,7 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
 }
 
 _CHOICES = {
+    "pipeline_split": ("auto", "prepare", "network"),
     "proposal_source": ("geometric", "external"),
     "size_mismatch": ("rescale", "skip"),
     "up_source": ("estimate", "fixed", "imu"),
@@ -514,6 +520,10 @@ class DetectorNode(Node):
             if self._handoff is not None and hasattr(det, "prepare") and hasattr(det, "finish"):
                 job.prepared = det.prepare(pf.rgb, pf.depth, pf.K, boxes2d=pf.boxes2d, up=fs.up)
                 job.detector = det
+                if hasattr(det, "first_pass") and self._first_pass_early(det):
+                    det.first_pass(job.prepared)
+                    with self._lock:
+                        self.counters["first_pass_early"] += 1
             else:
                 job.objects = list(det.detect(pf.rgb, pf.depth, pf.K, boxes2d=pf.boxes2d, up=fs.up))
         except Exception as e:  # noqa: BLE001
@@ -521,6 +531,15 @@ class DetectorNode(Node):
         else:
             job.detect_ms = (time.perf_counter() - td) * 1e3
         return job
+
+    def _first_pass_early(self, det: Any) -> bool:
+        """Whether this thread (the first stage) also runs the network's first pass."""
+        split = self.p["pipeline_split"]
+        if split != "auto":
+            return split == "network"
+        from .detector import first_pass_early
+
+        return first_pass_early(getattr(det, "last_timing", None))
 
     def _complete(self, job: _Job) -> None:
         """The rest of the detector's work on ``job`` (if any), then publish and count."""

@@ -512,7 +512,7 @@ def make_detector(
     weights: str | None = None,
     device: str = "cpu",
     score_threshold: float = 0.3,
-    max_objects: int = 20,
+    max_objects: int = 25,
     proposals: str = "geometric",
     factory: str | None = None,
     workers: int = 2,
@@ -561,7 +561,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     d.add_argument("--weights", help="network weights (default: the packaged ones)")
     d.add_argument("--device", default="cpu")
     d.add_argument("--score-threshold", type=float, default=0.3)
-    d.add_argument("--max-objects", type=int, default=20)
+    d.add_argument("--max-objects", type=int, default=25)
     d.add_argument("--precision", default="fp32", choices=PRECISIONS,
                    help="network arithmetic (bf16: faster on CPUs with AMX / AVX512-BF16; auto: bf16 for "
                         "4 or more frustums where the CPU has AMX)")

@@ -291,6 +291,30 @@ def test_pipeline_overlaps_frames_and_keeps_their_order(harness):
     assert st["detect_p50_ms"] >= 200  # detector time of a frame counts both stages
 
 
+class ThreeStageDetector(StagedDetector):
+    """A StagedDetector with ShapeDetector's first_pass() and a lopsided last_timing."""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.last_timing = {"proposals_ms": 10.0, "network_ms": 30.0, "refine_ms": 40.0}
+
+    def first_pass(self, z):
+        self.stages.append(("first_pass", threading.current_thread().name, time.monotonic(), time.monotonic()))
+        return z
+
+
+@pytest.mark.parametrize("split, early", [("auto", True), ("network", True), ("prepare", False)])
+def test_pipeline_split_moves_the_first_pass_to_the_first_thread(harness, split, early):
+    det = ThreeStageDetector()
+    h = harness(f"sd_split_{split}", det, params={"pipeline_split": split})
+    for k in range(2):
+        h.frame(time.time_ns())
+        h.wait_markers(k + 1)
+    runs = [name for stage, name, _, _ in det.stages if stage == "first_pass"]
+    assert runs == (["shape_detector_worker"] * 2 if early else [])
+    assert h.node.get_stats().get("first_pass_early", 0) == (2 if early else 0)
+
+
 def test_pipeline_off_runs_detect_in_one_thread(harness):
     det = StagedDetector()
     h = harness("sd_nopipe", det, params={"pipeline": False})

@@ -44,6 +44,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nms-decay", type=float, default=0.1,
                    help="built-in proposals: keep boxes 3D NMS suppresses at this fraction of their score "
                    "(Soft-NMS; 0 = drop them; default 0.1)")
+    p.add_argument("--max-objects", type=int, default=25,
+                   help="built-in proposals per frame, best first (default 25, as ShapeDetector)")
     p.add_argument("--classifier", default=None, metavar="PATH|none",
                    help="proposal classifier for built-in proposals (default: the packaged one; none = off)")
     p.add_argument("--no-refine", action="store_true",
@@ -88,7 +90,8 @@ def main(args: argparse.Namespace) -> int:
                                  nms_decay=args.nms_decay, precision=args.precision,
                                  classifier=(True if args.classifier is None else
                                              False if args.classifier == "none" else args.classifier),
-                                 refine=not args.no_refine, refine_min_score=args.refine_min_score)
+                                 refine=not args.no_refine, refine_min_score=args.refine_min_score,
+                                 max_objects=args.max_objects)
     except FileNotFoundError as e:
         print(f"shape-detector evaluate: {e}", file=sys.stderr)
         return 2
@@ -125,6 +128,7 @@ def main(args: argparse.Namespace) -> int:
             "snap_primitives": not args.no_snap_primitives,
             "mirror_tta": args.mirror_tta,
             "nms_decay": args.nms_decay,
+            "max_objects": args.max_objects,
             "classifier": (args.classifier or "packaged") if getattr(detector, "classifier", None) is not None else "off",
             "refine": "off" if args.no_refine else f"score >= {args.refine_min_score:g}",
             "precision": args.precision,

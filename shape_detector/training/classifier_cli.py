@@ -33,6 +33,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weights", type=Path, default=None, help="network weights (default: the packaged ones)")
     p.add_argument("--max-frames", type=int, default=None, help="use at most this many frames per --data")
     p.add_argument("--workers", type=int, default=2, help="processes building candidates (default 2)")
+    p.add_argument("--proposals", type=int, default=20,
+                   help="built-in proposals per frame made candidates, best first (default 20)")
     p.add_argument("--epochs", type=int, default=12)
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--lr", type=float, default=1e-3)
@@ -40,9 +42,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads while training (default 2)")
 
 
-def _build(job: tuple[list[str], str | None, int | None, str]) -> str:
+def _build(job: tuple[list[str], str | None, int | None, int, str]) -> str:
     """One worker: candidates of some shard files -> an .npz (returns its path)."""
-    files, weights, max_frames, out = job
+    files, weights, max_frames, proposals, out = job
     import cv2
     import torch
 
@@ -52,7 +54,8 @@ def _build(job: tuple[list[str], str | None, int | None, str]) -> str:
     from ..synth.dataset import iter_frames
     from .classifier_data import build_candidates
 
-    det = ShapeDetector(weights=weights, score_threshold=0.0, workers=1, classifier=False, refine=False)
+    det = ShapeDetector(weights=weights, score_threshold=0.0, workers=1, classifier=False, refine=False,
+                        max_objects=proposals)
     frames = itertools.chain.from_iterable(iter_frames(f) for f in files)
     if max_frames is not None:
         frames = itertools.islice(frames, max_frames)
@@ -63,7 +66,9 @@ def _build(job: tuple[list[str], str | None, int | None, str]) -> str:
     return out
 
 
-def build_all(data: list[Path], out_dir: Path, weights: Path | None, max_frames: int | None, workers: int) -> list[Path]:
+def build_all(
+    data: list[Path], out_dir: Path, weights: Path | None, max_frames: int | None, workers: int, proposals: int = 20
+) -> list[Path]:
     """Candidate files of every shard directory, built by ``workers`` processes (cached)."""
     from ..synth.dataset import shard_paths
 
@@ -76,7 +81,7 @@ def build_all(data: list[Path], out_dir: Path, weights: Path | None, max_frames:
         for g_i, g in enumerate(groups):
             out = out_dir / f"candidates_{d_i}_{g_i}.npz"
             if not out.is_file():
-                jobs.append(([shards[k] for k in g], str(weights) if weights else None, per, str(out)))
+                jobs.append(([shards[k] for k in g], str(weights) if weights else None, per, proposals, str(out)))
     if jobs:
         print(f"building candidates: {len(jobs)} jobs on {workers} processes", flush=True)
         if workers > 1:
@@ -114,16 +119,15 @@ def main(args: argparse.Namespace) -> int:
             print(f"shape-detector train-classifier: no data directory {str(d)!r}", file=sys.stderr)
             return 2
     t0 = time.time()
-    paths = build_all(args.data, args.out, args.weights, args.max_frames, args.workers)
+    paths = build_all(args.data, args.out, args.weights, args.max_frames, args.workers, args.proposals)
     ds = load_candidates(paths)
     n = len(ds["label"])
     print(f"{n} candidates from {len(paths)} files in {time.time() - t0:.0f} s "
           f"(background {np.mean(ds['label'] == ds['label'].max()):.2f})", flush=True)
     cfg = ClassifierTrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, seed=args.seed,
                                 threads=args.threads)
-    log_rows: list[dict[str, Any]] = []
     result = train_classifier(ds, args.out / "classifier.pt", cfg, log=print)
-    log_rows = result["history"]
+    log_rows: list[dict[str, Any]] = result["history"]
     (args.out / "log.json").write_text(json.dumps({"history": log_rows, "best": result["best"],
                                                    "candidates": n, "seconds": time.time() - t0}, indent=1))
     print(f"best epoch {result['best']['epoch']}: held-out NLL {result['best']['nll']:.4f}, "
