@@ -50,9 +50,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
                    help="proposal classifier for built-in proposals (default: the packaged one; none = off)")
     p.add_argument("--no-refine", action="store_true",
                    help="built-in proposals: no class-given second pass")
-    p.add_argument("--refine-min-score", type=float, default=0.2,
+    p.add_argument("--refine-min-score", type=float, default=0.3,
                    help="score (after the proposal classifier) a built-in proposal needs for the second pass "
-                        "(default 0.2)")
+                        "(default 0.3, as ShapeDetector)")
     p.add_argument("--class-hypotheses", type=int, default=1,
                    help="also report AP with each detection counted for its top-K classes (VoteNet's "
                    "per-class proposals; detected boxes only; default 1 = off)")
