@@ -347,7 +347,9 @@ class ShapeDetector:
         :meth:`finish` of another frame. Returns ``frame``."""
         t0 = time.perf_counter()
         class_ids = [CLASS_TO_ID[c] if c is not None else None for _, c, _ in frame.boxes]
-        frame.first = self.predictor.predict(frame.frustums, class_ids, mirror=self._mirror(frame))
+        # the class-given second pass reuses the first pass's segmentation features
+        keep = self.refine and any(c is None for c in class_ids)
+        frame.first = self.predictor.predict(frame.frustums, class_ids, mirror=self._mirror(frame), keep_features=keep)
         frame.timing["network_ms"] = 1e3 * (time.perf_counter() - t0)
         return frame
 

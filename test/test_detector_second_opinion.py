@@ -133,3 +133,39 @@ def test_first_pass_in_the_first_stage_gives_the_same_objects(scene):
         assert g.class_name == r.class_name and g.score == pytest.approx(r.score)
         np.testing.assert_allclose(g.center, r.center)
     assert {"network_ms", "classifier_ms", "refine_ms", "post_ms", "total_ms"} <= set(det.last_timing)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_second_pass_with_cached_segmentation_features_is_the_same(scene, workers):
+    """The class one-hot enters the network after the segmentation PointNet, so the second
+    pass may reuse the first pass's features: same boxes, masks and primitives."""
+    det = ShapeDetector(score_threshold=0.0, classifier=False, refine=False, workers=workers)
+    prep = det.prepare(scene.rgb, scene.depth, scene.K)
+    pred = det.predictor
+    plain = pred.predict(prep.frustums, [None] * len(prep.frustums))
+    kept = pred.predict(prep.frustums, [None] * len(prep.frustums), keep_features=True)
+    assert plain[0].seg_features is None
+    glob, local = kept[0].seg_features
+    assert glob.ndim == 1 and local.shape[0] == prep.frustums[0].points.shape[0]
+    calls = []
+    seg_mlp = pred.model.seg_mlp
+    handle = seg_mlp.register_forward_hook(lambda *a: calls.append(1))
+    try:
+        seg_mlp.forward_max = (lambda f: lambda *a, **k: (calls.append(1), f(*a, **k))[1])(seg_mlp.forward_max)
+        cached = pred.refine(prep.frustums, kept, min_score=0.0)
+        n_cached = len(calls)
+        full = pred.refine(prep.frustums, plain, min_score=0.0)
+    finally:
+        handle.remove()
+        del seg_mlp.forward_max
+    assert n_cached == 0 and len(calls) >= 1  # the cached pass never ran the segmentation PointNet
+    assert len(cached) == len(full) >= 2
+    for c, f in zip(cached, full):
+        np.testing.assert_allclose(c.center, f.center, atol=1e-5)
+        np.testing.assert_allclose(c.size, f.size, atol=1e-5)
+        np.testing.assert_allclose(c.seg_prob, f.seg_prob, atol=1e-5)
+        assert c.score == pytest.approx(f.score, abs=1e-5)
+        assert len(c.primitives) == len(f.primitives)
+    # a cache from other frustums is refused by shape
+    with pytest.raises(ValueError, match="seg_features"):
+        pred.predict(prep.frustums, seg_features=[None])

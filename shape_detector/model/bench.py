@@ -122,7 +122,7 @@ def _bench_builtin_path(pred, counts, n_pts: int, rng, repeats: int, warmup: int
         fr = _fake_frustums(int(c), n_pts, rng)
 
         def run() -> None:
-            first = pred.predict(fr, [None] * len(fr))
+            first = pred.predict(fr, [None] * len(fr), keep_features=True)  # as the detector: reused below
             clf.probabilities(*frame_inputs(fr, first, [(0, 0, 100, 100)] * len(fr), [1.0] * len(fr), (640, 480), 1.3,
                                             clf.config))
             pred.refine(fr, first)

@@ -89,16 +89,30 @@ class FrustumShapeNet(nn.Module):
             out.bias.copy_(b.reshape(-1))
 
     # ------------------------------------------------------------------ pieces
-    def segment(self, pts: torch.Tensor, one_hot: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Per-point logits (B,N,2) and the global segmentation feature (B,C)."""
+    def seg_features(self, pts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The class-independent part of the segmentation: the global feature (B,C) and the
+        local points' first seg-head term (B,N,H). The class one-hot enters only after them
+        (:meth:`segment`), so a second pass over the same points with another one-hot can
+        reuse them (:meth:`forward`'s ``seg_cache``)."""
         cfg = self.config
         glob, local = self.seg_mlp.forward_max(pts[..., : cfg.in_channels], keep=cfg.seg_local_index)
-        h = self.seg_head_local(local) + self.seg_head_global(torch.cat([glob, one_hot], 1)).unsqueeze(1)
+        return glob, self.seg_head_local(local)
+
+    def segment(
+        self,
+        pts: torch.Tensor,
+        one_hot: torch.Tensor,
+        features: tuple[torch.Tensor, torch.Tensor] | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Per-point logits (B,N,2), the global segmentation feature (B,C) and the local
+        seg-head term (B,N,H); ``features`` = :meth:`seg_features` of ``pts`` if known."""
+        glob, h_local = self.seg_features(pts) if features is None else features
+        h = h_local + self.seg_head_global(torch.cat([glob, one_hot], 1)).unsqueeze(1)
         if self.seg_head_bn is not None:
             shape = h.shape
             h = self.seg_head_bn(h.reshape(-1, shape[-1])).reshape(shape)
         h = self.seg_head_mlp(torch.relu(h))
-        return self.seg_out(h), glob
+        return self.seg_out(h), glob, h_local
 
     def gather_object_points(
         self, xyz: torch.Tensor, fg: torch.Tensor, random: bool
@@ -137,12 +151,15 @@ class FrustumShapeNet(nn.Module):
         random_gather: bool | None = None,
         fg_override: torch.Tensor | None = None,
         shape_box: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
+        seg_cache: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> dict[str, torch.Tensor]:
         """``points`` (B,N,>=3) frame F [+ rgb], ``one_hot`` (B,num_classes) (zeros allowed).
 
         ``fg_override`` (B,N) bool replaces the predicted hard mask (e.g. GT mask for
         teacher forcing); ``shape_box`` = (centre (B,3), heading (B,), size (B,3)) in F
         canonicalises the shape branch's input (default: the predicted box, detached).
+        ``seg_cache`` = the ``seg_glob`` / ``seg_local`` outputs of an earlier forward over the
+        same ``points`` (any one-hot): the segmentation PointNet is skipped, same result.
         Returns a dict of tensors (see the module docstring); ``box_heading``,
         ``box_size``, ``box_cluster`` are the decoded predicted box (size cluster = the
         given class, else the size head's argmax), detached.
@@ -150,7 +167,7 @@ class FrustumShapeNet(nn.Module):
         cfg = self.config
         if random_gather is None:
             random_gather = self.training
-        seg_logits, seg_glob = self.segment(points, one_hot)
+        seg_logits, seg_glob, seg_local = self.segment(points, one_hot, seg_cache)
         xyz = points[..., :3]
         fg = fg_override if fg_override is not None else (seg_logits[..., 1] > seg_logits[..., 0])
         obj, mask_mean, fg_count = self.gather_object_points(xyz, fg, random_gather)
@@ -184,6 +201,8 @@ class FrustumShapeNet(nn.Module):
             shape_in = torch.cat([fo, self.shape_mlp.forward_max(q)], 1)
         out: dict[str, torch.Tensor] = {
             "seg_logits": seg_logits,
+            "seg_glob": seg_glob,
+            "seg_local": seg_local,
             "fg_count": fg_count,
             "mask_mean": mask_mean,
             "stage1_center": stage1,

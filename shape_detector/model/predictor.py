@@ -59,7 +59,10 @@ class FrustumPrediction:
     ``primitives_canonical`` the same in the canonical object frame (box centre, x =
     heading, z up, metres) for composing with another box (e.g. the GT one);
     ``seg_prob`` (N,) foreground probability of each frustum point; ``center_F`` /
-    ``heading_F`` the box in the frustum frame.
+    ``heading_F`` the box in the frustum frame. ``seg_features``: the network's
+    class-independent segmentation features of this frustum (torch tensors, only with
+    ``predict(..., keep_features=True)``), which let :meth:`FrustumPredictor.refine` skip the
+    segmentation PointNet.
     """
 
     class_name: str
@@ -76,6 +79,7 @@ class FrustumPrediction:
     center_F: np.ndarray = field(default_factory=lambda: np.zeros(3))
     heading_F: float = 0.0
     primitives_canonical: list[Cuboid] = field(default_factory=list)
+    seg_features: tuple[torch.Tensor, torch.Tensor] | None = field(default=None, repr=False, compare=False)
 
 
 def resolve_device(device: str | torch.device | None) -> torch.device:
@@ -224,14 +228,26 @@ class FrustumPredictor:
 
     # --------------------------------------------------------------------------
     @torch.inference_mode()
-    def forward_arrays(self, points: np.ndarray, one_hot: np.ndarray) -> dict[str, np.ndarray]:
-        """Raw batched forward on (B,N,6) points / (B,C) one-hot; decoded frame-F arrays."""
+    def forward_arrays(
+        self,
+        points: np.ndarray,
+        one_hot: np.ndarray,
+        seg_cache: tuple[torch.Tensor, torch.Tensor] | None = None,
+        keep_features: bool = False,
+    ) -> dict[str, np.ndarray]:
+        """Raw batched forward on (B,N,6) points / (B,C) one-hot; decoded frame-F arrays.
+
+        ``seg_cache``: the ``seg_glob`` / ``seg_local`` of an earlier call on the same points
+        (the segmentation PointNet is skipped); ``keep_features`` adds them to the result
+        (torch tensors, not arrays).
+        """
         cfg = self.config
         pts = torch.as_tensor(np.asarray(points, np.float32), device=self.device)
         oh = torch.as_tensor(np.asarray(one_hot, np.float32), device=self.device)
         bf16 = self.bf16_min_batch is not None and pts.shape[0] >= self.bf16_min_batch
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=bf16):
-            out = self.model(pts, oh, random_gather=False)  # autocast is per thread: set in each worker
+            # autocast is per thread: set in each worker
+            out = self.model(pts, oh, random_gather=False, seg_cache=seg_cache)
         T = self.model.cls_temperature.clamp_min(1e-3)
         probs = torch.softmax(out["cls_logits"] / T, dim=1)
         seg_prob = torch.softmax(out["seg_logits"], dim=-1)[..., 1]
@@ -253,16 +269,28 @@ class FrustumPredictor:
             "prim_size": prims["size"],
             "prim_rotation": prims["rotation"],
         }
-        return {k: v.detach().float().cpu().numpy() for k, v in res.items()}
+        arrays: dict = {k: v.detach().float().cpu().numpy() for k, v in res.items()}
+        if keep_features:
+            arrays["seg_glob"], arrays["seg_local"] = out["seg_glob"], out["seg_local"]
+        return arrays
 
     def predict(
-        self, frustums: Sequence[Frustum], class_ids: Sequence[int | None] | None = None, mirror: bool = False
+        self,
+        frustums: Sequence[Frustum],
+        class_ids: Sequence[int | None] | None = None,
+        mirror: bool = False,
+        keep_features: bool = False,
+        seg_features: Sequence[tuple[torch.Tensor, torch.Tensor] | None] | None = None,
     ) -> list[FrustumPrediction]:
         """Predictions for ``frustums`` (class ids: index into CLASSES, or None = unknown).
 
         ``mirror``: test-time augmentation; each frustum also runs mirrored (x -> -x in frame F,
         a symmetry the training augments with) in the same batch, and the two predictions are
         averaged (:func:`merge_mirrored`). Twice the network work.
+        ``keep_features`` (no mirror): each prediction keeps its frustum's segmentation
+        features (``FrustumPrediction.seg_features``); ``seg_features``: such features of an
+        earlier pass over the same frustums, one per frustum (used where a whole
+        same-size group has them, without mirror: that group skips the segmentation PointNet).
         """
         n = len(frustums)
         if class_ids is None:
@@ -276,6 +304,9 @@ class FrustumPredictor:
         groups: dict[int, list[int]] = {}
         for i, f in enumerate(frustums):
             groups.setdefault(int(f.points.shape[0]), []).append(i)
+        if seg_features is not None and len(seg_features) != n:
+            raise ValueError("seg_features must match frustums")
+        keep = keep_features and not mirror
         for _, idx in groups.items():
             pts = np.stack([frustums[i].points[:, :6] for i in idx]).astype(np.float32)
             oh = np.zeros((len(idx), nc), np.float32)
@@ -283,14 +314,22 @@ class FrustumPredictor:
                 c = class_ids[i]
                 if c is not None:
                     oh[j, int(c)] = 1.0
+            cache = None
+            if seg_features is not None and not mirror and all(seg_features[i] is not None for i in idx):
+                cache = (
+                    torch.stack([seg_features[i][0] for i in idx]),  # type: ignore[index]
+                    torch.stack([seg_features[i][1] for i in idx]),  # type: ignore[index]
+                )
             if mirror:
                 flipped = pts.copy()
                 flipped[..., 0] *= -1.0
                 arr = merge_mirrored(self._forward_parallel(np.concatenate([pts, flipped]), np.concatenate([oh, oh])))
             else:
-                arr = self._forward_parallel(pts, oh)
+                arr = self._forward_parallel(pts, oh, cache, keep)
             for j, i in enumerate(idx):
                 results[i] = self._decode_one(frustums[i], class_ids[i], arr, j)
+                if keep:
+                    results[i].seg_features = (arr["seg_glob"][j], arr["seg_local"][j])  # type: ignore[union-attr]
         return results  # type: ignore[return-value]
 
     def refine(
@@ -321,26 +360,49 @@ class FrustumPredictor:
         out = list(first)
         if not idx or not self.has_class_head:
             return out
-        second = self.predict([frustums[i] for i in idx], [CLASS_TO_ID[first[i].class_name] for i in idx], mirror)
+        second = self.predict(
+            [frustums[i] for i in idx],
+            [CLASS_TO_ID[first[i].class_name] for i in idx],
+            mirror,
+            seg_features=[first[i].seg_features for i in idx],
+        )
         for i, q in zip(idx, second):
             p = first[i]
             out[i] = replace(q, class_name=p.class_name, class_probs=p.class_probs, score=refined_score(p.score, q.objectness))
         return out
 
-    def _forward_parallel(self, pts: np.ndarray, oh: np.ndarray) -> dict[str, np.ndarray]:
+    def _forward_parallel(
+        self,
+        pts: np.ndarray,
+        oh: np.ndarray,
+        seg_cache: tuple[torch.Tensor, torch.Tensor] | None = None,
+        keep_features: bool = False,
+    ) -> dict[str, np.ndarray]:
         """:meth:`forward_arrays`, split over ``self.workers`` threads for large batches."""
         n = pts.shape[0]
         k = min(self.workers, n // self.min_chunk)
         if k <= 1:
-            return self.forward_arrays(pts, oh)
+            return self.forward_arrays(pts, oh, seg_cache, keep_features)
         if self._pool is None:
             from concurrent.futures import ThreadPoolExecutor
 
             self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="frustum-net")
         bounds = np.linspace(0, n, k + 1).round().astype(int)
-        futs = [self._pool.submit(self.forward_arrays, pts[a:b], oh[a:b]) for a, b in zip(bounds[:-1], bounds[1:])]
+        futs = [
+            self._pool.submit(
+                self.forward_arrays,
+                pts[a:b],
+                oh[a:b],
+                None if seg_cache is None else (seg_cache[0][a:b], seg_cache[1][a:b]),
+                keep_features,
+            )
+            for a, b in zip(bounds[:-1], bounds[1:])
+        ]
         parts = [f.result() for f in futs]
-        return {key: np.concatenate([p[key] for p in parts], 0) for key in parts[0]}
+        return {
+            key: (torch.cat if isinstance(parts[0][key], torch.Tensor) else np.concatenate)([p[key] for p in parts], 0)
+            for key in parts[0]
+        }
 
     def _decode_one(self, fr: Frustum, cid: int | None, arr: dict[str, np.ndarray], j: int) -> FrustumPrediction:
         cfg = self.config
