@@ -60,7 +60,7 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
                   {"floating_point_range": [FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)]}),
     "refine": (True, "built-in proposals: run each frustum scored >= refine_min_score a second time with its "
                "predicted class given (that class's box prior)", False, {}),
-    "refine_min_score": (0.2, "score (after the proposal classifier) a built-in proposal needs for the class-given "
+    "refine_min_score": (0.3, "score (after the proposal classifier) a built-in proposal needs for the class-given "
                          "second pass", False,
                          {"floating_point_range": [FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)]}),
     "classifier": ("", "proposal classifier file that re-decides the class of built-in proposals; empty = the "
