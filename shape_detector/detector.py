@@ -94,6 +94,16 @@ def first_pass_early(timing: dict[str, float] | None, margin: float = 0.1) -> bo
     return max(a + n, b) < (1.0 - margin) * max(a, n + b)
 
 
+def classifier_option(text: str | None) -> str | bool | None:
+    """A front end's classifier setting (CLI option, node parameter) as the ``classifier``
+    argument of :class:`ShapeDetector` and of detector factories: None or ``""`` = not
+    given (None: leave the argument out, the packaged classifier), ``"none"`` = False
+    (off), anything else = a path."""
+    if not text:
+        return None
+    return False if text == "none" else text
+
+
 def _load_classifier(spec: str | Path | bool):
     """The proposal classifier for ``ShapeDetector(classifier=spec)``, or None."""
     if spec is False or spec is None:
@@ -364,10 +374,9 @@ class ShapeDetector:
             self.first_pass(frame)
         t_net = time.perf_counter()
         boxes = frame.boxes
-        class_ids = [CLASS_TO_ID[c] if c is not None else None for _, c, _ in boxes]
         mirror = self._mirror(frame)
         preds = list(frame.first or [])
-        agnostic = [i for i, c in enumerate(class_ids) if c is None]
+        agnostic = [i for i, (_, c, _) in enumerate(boxes) if c is None]
         if self.classifier is not None and not frame.given_boxes and agnostic:
             preds = reclassify(self.classifier, frame, preds)
         t_cls = time.perf_counter()

@@ -272,8 +272,10 @@ class DetectorNode(Node):
             # external 2D boxes come with every frame: no built-in proposer needed
             proposals="none" if self.external else "geometric",
         )
-        if self.p["classifier"] != "":
-            kwargs["classifier"] = False if self.p["classifier"] == "none" else self.p["classifier"]
+        from .detector import classifier_option
+
+        if (classifier := classifier_option(self.p["classifier"])) is not None:
+            kwargs["classifier"] = classifier
         factory = self._factory
         if factory is None and self.p["detector_factory"]:
             factory = load_factory(self.p["detector_factory"])

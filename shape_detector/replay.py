@@ -526,19 +526,19 @@ def make_detector(
     ShapeDetector is then built with ``proposals='none'``). ``classifier``: None = the
     packaged proposal classifier, 'none' = off, else a path; ``refine``: the class-given
     second pass (these two are passed to a factory only when not the defaults)."""
+    from .detector import ShapeDetector, classifier_option
+
     if proposals not in ("geometric", "external", "none"):
         raise ValueError(f"proposals must be 'geometric' or 'external', got {proposals!r}")
     kwargs: dict[str, Any] = dict(weights=weights or None, device=device, score_threshold=score_threshold,
                                   max_objects=max_objects, proposals="none" if proposals == "external" else proposals,
                                   workers=workers, precision=precision)
-    if classifier:
-        kwargs["classifier"] = False if classifier == "none" else classifier
+    if (spec := classifier_option(classifier)) is not None:
+        kwargs["classifier"] = spec
     if not refine:
         kwargs["refine"] = False
     if factory:
         return load_factory(factory)(**kwargs)
-    from .detector import ShapeDetector
-
     return ShapeDetector(**kwargs)
 
 

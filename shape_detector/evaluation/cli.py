@@ -65,6 +65,14 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no per-frame progress")
 
 
+def _classifier(text: str | None) -> str | bool:
+    """``--classifier`` as ``ShapeDetector(classifier=...)`` (not given: the packaged one)."""
+    from ..detector import classifier_option
+
+    spec = classifier_option(text)
+    return True if spec is None else spec
+
+
 def _frames(args: argparse.Namespace) -> Iterator[Any]:
     if args.data:
         from ..synth.dataset import iter_frames
@@ -88,8 +96,7 @@ def main(args: argparse.Namespace) -> int:
                                  floor_snap=args.floor_snap, point_fit=args.point_fit,
                                  mirror_tta=args.mirror_tta, snap_primitives=not args.no_snap_primitives,
                                  nms_decay=args.nms_decay, precision=args.precision,
-                                 classifier=(True if args.classifier is None else
-                                             False if args.classifier == "none" else args.classifier),
+                                 classifier=_classifier(args.classifier),
                                  refine=not args.no_refine, refine_min_score=args.refine_min_score,
                                  max_objects=args.max_objects)
     except FileNotFoundError as e:

@@ -74,18 +74,7 @@ def bench_network(
     for c in counts:
         fr = _fake_frustums(int(c), n_pts, rng)
         cls = [i % pred.config.num_classes for i in range(int(c))]
-        for _ in range(warmup):
-            pred.predict(fr, cls)
-        times, cpu = [], []
-        for _ in range(repeats):
-            if pred.device.type == "cuda":
-                torch.cuda.synchronize()
-            t0, c0 = time.perf_counter(), time.process_time()
-            pred.predict(fr, cls)
-            if pred.device.type == "cuda":
-                torch.cuda.synchronize()
-            times.append((time.perf_counter() - t0) * 1000.0)
-            cpu.append((time.process_time() - c0) * 1000.0)
+        times, cpu = _timed(lambda: pred.predict(fr, cls), warmup, repeats, pred.device.type == "cuda")
         med = float(np.median(times))
         results[int(c)] = {"median_ms": med, "mean_ms": float(np.mean(times)), "fps": 1000.0 / med,
                            "cpu_ms": float(np.median(cpu))}
@@ -105,6 +94,24 @@ def bench_network(
         "num_points": n_pts,
         "results": results,
     }
+
+
+def _timed(run, warmup: int, repeats: int, cuda: bool) -> tuple[list[float], list[float]]:
+    """Wall-clock and process-CPU milliseconds of ``repeats`` calls of ``run`` after
+    ``warmup`` untimed ones (CUDA synchronised around each timed call when ``cuda``)."""
+    for _ in range(warmup):
+        run()
+    wall, cpu = [], []
+    for _ in range(repeats):
+        if cuda:
+            torch.cuda.synchronize()
+        t0, c0 = time.perf_counter(), time.process_time()
+        run()
+        if cuda:
+            torch.cuda.synchronize()
+        wall.append((time.perf_counter() - t0) * 1000.0)
+        cpu.append((time.process_time() - c0) * 1000.0)
+    return wall, cpu
 
 
 def _bench_builtin_path(pred, counts, n_pts: int, rng, repeats: int, warmup: int, verbose: bool) -> dict:
@@ -127,13 +134,7 @@ def _bench_builtin_path(pred, counts, n_pts: int, rng, repeats: int, warmup: int
                                             clf.config))
             pred.refine(fr, first)
 
-        for _ in range(warmup):
-            run()
-        times = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            run()
-            times.append((time.perf_counter() - t0) * 1000.0)
+        times, _ = _timed(run, warmup, repeats, pred.device.type == "cuda")
         med = float(np.median(times))
         out[int(c)] = {"median_ms": med, "fps": 1000.0 / med}
         if verbose:

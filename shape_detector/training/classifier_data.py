@@ -95,14 +95,18 @@ def frame_candidates(
     if not prep.frustums:
         return None
     pred = detector.predictor
-    first = pred.predict(prep.frustums, [None] * len(prep.frustums))
+    first = pred.predict(prep.frustums, [None] * len(prep.frustums), keep_features=True)  # reused below
     boxes = [b for b, _, _ in prep.boxes]
     objects = list(frame.objects)
     tried = tried_objects(boxes, objects, min_iou2d)
     idx = sorted(tried)
     refined: dict[int, tuple[int, Any]] = {}
     if idx:
-        second = pred.predict([prep.frustums[i] for i in idx], [CLASS_TO_ID[objects[tried[i]].class_name] for i in idx])
+        second = pred.predict(
+            [prep.frustums[i] for i in idx],
+            [CLASS_TO_ID[objects[tried[i]].class_name] for i in idx],
+            seg_features=[first[i].seg_features for i in idx],
+        )
         refined = {i: (tried[i], q) for i, q in zip(idx, second)}
     label, weight, iou = label_candidates(first, refined, objects, prep.up, **label_kw)
     h, w = prep.depth.shape

@@ -391,14 +391,22 @@ def concat(dsets: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     return out
 
 
-def split_by_frame(ds: dict[str, np.ndarray], val_fraction: float, seed: int = 0):
-    """(train, val) split with whole frames on one side."""
-    frames = np.unique(ds["frame_index"])
+def split_frames(frame_index: np.ndarray, val_fraction: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Row indices (train, val) of a split with whole frames on one side: ``val_fraction``
+    of the distinct values of ``frame_index``, drawn with ``seed``."""
+    frame_index = np.asarray(frame_index)
+    frames = np.unique(frame_index)
     rng = np.random.default_rng(seed)
     nval = int(round(len(frames) * val_fraction))
-    val_frames = set(rng.choice(frames, nval, replace=False).tolist()) if nval > 0 else set()
-    is_val = np.array([f in val_frames for f in ds["frame_index"]], bool)
-    return subset(ds, np.nonzero(~is_val)[0]), subset(ds, np.nonzero(is_val)[0])
+    val_frames = rng.choice(frames, nval, replace=False) if nval > 0 else frames[:0]
+    is_val = np.isin(frame_index, val_frames)
+    return np.nonzero(~is_val)[0], np.nonzero(is_val)[0]
+
+
+def split_by_frame(ds: dict[str, np.ndarray], val_fraction: float, seed: int = 0):
+    """(train, val) split with whole frames on one side (:func:`split_frames`)."""
+    tr, va = split_frames(ds["frame_index"], val_fraction, seed)
+    return subset(ds, tr), subset(ds, va)
 
 
 def save(ds: dict[str, np.ndarray], path: str | Path) -> Path:

@@ -22,6 +22,7 @@ import torch.nn.functional as F
 
 from ..classes import NUM_CLASSES
 from ..model.classifier import GLOBAL_FEATURES, ClassifierConfig, ProposalClassifier, save_classifier
+from .frustum_dataset import split_frames
 
 _CUT_LEFT, _CUT_RIGHT = GLOBAL_FEATURES.index("cut_left"), GLOBAL_FEATURES.index("cut_right")
 
@@ -36,16 +37,6 @@ class ClassifierTrainConfig:
     class_balance: float = 0.5
     seed: int = 0
     threads: int = 1
-
-
-def split_frames(frame_index: np.ndarray, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Row indices (train, val) with whole frames on one side."""
-    frames = np.unique(frame_index)
-    rng = np.random.default_rng(seed)
-    n_val = int(round(len(frames) * val_fraction))
-    val = set(rng.choice(frames, n_val, replace=False).tolist()) if n_val else set()
-    is_val = np.array([f in val for f in frame_index.tolist()], bool)
-    return np.nonzero(~is_val)[0], np.nonzero(is_val)[0]
 
 
 def class_weights(labels: np.ndarray, weights: np.ndarray, power: float) -> np.ndarray:
