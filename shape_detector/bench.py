@@ -33,6 +33,10 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weights", default=None, help="weights for network/pipeline/node (default: packaged)")
     p.add_argument("--no-classifier", action="store_true", help="pipeline: without the proposal classifier")
     p.add_argument("--no-refine", action="store_true", help="pipeline: without the class-given second pass")
+    p.add_argument("--no-trace", action="store_true",
+                   help="network, pipeline: the eager forward instead of the TorchScript graphs")
+    p.add_argument("--pipeline-split", default="auto", choices=("auto", "prepare", "network"),
+                   help="pipeline: where the node's pipeline runs the network's first pass (its pipeline_split)")
     p.add_argument("--bag", default=str(Path(__file__).resolve().parents[1] / "bags" / "sample"))
     p.add_argument("--json", default=None, help="also write the results here")
 
@@ -46,6 +50,8 @@ def bench_pipeline(
     max_objects: int = 25,
     classifier: bool = True,
     refine: bool = True,
+    pipeline_split: str = "auto",
+    trace: bool = True,
 ) -> dict:
     """Median / p95 ms per VGA frame of ``ShapeDetector.detect`` with GT boxes and with built-in
     proposals, then the built-in throughput with the node's two-thread pipeline."""
@@ -54,9 +60,10 @@ def bench_pipeline(
 
     det = ShapeDetector(
         weights=weights, score_threshold=0.0, num_threads=threads, workers=workers, precision=precision,
-        max_objects=max_objects, classifier=classifier, refine=refine,
+        max_objects=max_objects, classifier=classifier, refine=refine, trace=trace,
     )
     scenes = [generate_frame(10_000 + i) for i in range(frames)]
+    det.warm_up()  # as the node does at start: the network's graphs are traced
     out: dict[str, dict] = {}
     for mode in ("gt_boxes", "builtin"):
         times, parts, nobj = [], [], []
@@ -88,30 +95,32 @@ def bench_pipeline(
     # as the node runs it: two stages, each single-threaded (workers=1: the stages keep both
     # cores busy; a third thread only contends for them)
     det.predictor.workers = 1
-    res = _bench_pipelined(det, scenes)
+    res = _bench_pipelined(det, scenes, pipeline_split)
     det.predictor.workers = workers
     out["builtin_pipelined"] = res
     print(
         f"pipeline[builtin, node's 2-stage pipeline, workers=1]: {res['ms_per_frame']:.1f} ms/frame throughput "
         f"({res['fps']:.1f} fps); latency p50 {res['latency_ms_p50']:.1f} ms, p95 {res['latency_ms_p95']:.1f} ms; "
-        f"first pass in the first stage for {100 * res['first_pass_early_share']:.0f}% of the frames",
+        f"first pass in the first stage for {100 * res['first_pass_early_share']:.0f}% of the frames "
+        f"(pipeline_split {pipeline_split})",
         flush=True,
     )
     return out
 
 
-def _bench_pipelined(det, scenes: list) -> dict:
+def _bench_pipelined(det, scenes: list, split: str = "auto") -> dict:
     """Throughput and latency of built-in-proposal detection run as the node runs it with
     ``pipeline``: one thread runs ``prepare`` on frame N+1 while another runs ``finish`` on
     frame N; the first takes a frame once the second has taken the previous one, and a
-    frame is always waiting (a camera faster than the detector, without the drops)."""
+    frame is always waiting (a camera faster than the detector, without the drops).
+    ``split``: the node's ``pipeline_split``."""
     import threading
 
     from .detector import first_pass_early
     from .sync import LatestMailbox
 
     handoff: LatestMailbox = LatestMailbox()
-    early: list[int] = []
+    early: list[bool] = []
     latency: list[float] = []
     errors: list[BaseException] = []
 
@@ -123,9 +132,9 @@ def _bench_pipelined(det, scenes: list) -> dict:
                     return
                 t0 = time.perf_counter()
                 prepared = det.prepare(f.rgb, f.depth, f.K)
-                if first_pass_early(det.last_timing):  # as the node's pipeline_split 'auto'
+                early.append(first_pass_early(det.last_timing) if split == "auto" else split == "network")
+                if early[-1]:  # as the node's pipeline_split
                     det.first_pass(prepared)
-                    early.append(1)
                 handoff.put((t0, prepared))
             handoff.wait_empty()
         except BaseException as e:  # noqa: BLE001 - re-raised by the caller's thread
@@ -157,7 +166,7 @@ def _bench_pipelined(det, scenes: list) -> dict:
         "fps": float(1e3 / ms),
         "latency_ms_p50": float(np.median(latency)),
         "latency_ms_p95": float(np.percentile(latency, 95)),
-        "first_pass_early_share": float(len(early) / len(scenes)),
+        "first_pass_early_share": float(np.mean(early)),
     }
 
 
@@ -170,7 +179,10 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
     if target == "network":
         from .model.bench import bench_network
 
-        return bench_network(weights=args.weights, threads=args.threads, workers=args.workers, precision=args.precision)
+        return bench_network(
+            weights=args.weights, threads=args.threads, workers=args.workers, precision=args.precision,
+            trace=not args.no_trace,
+        )
     if target == "proposals":
         from .proposals.bench import bench_proposals
 
@@ -179,7 +191,7 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
         return bench_pipeline(
             frames=args.frames, weights=args.weights, threads=args.threads, workers=args.workers,
             precision=args.precision, max_objects=args.max_objects, classifier=not args.no_classifier,
-            refine=not args.no_refine,
+            refine=not args.no_refine, pipeline_split=args.pipeline_split, trace=not args.no_trace,
         )
     if target == "node":
         from .node_bench import bench_node

@@ -116,7 +116,7 @@ def _load_classifier(spec: str | Path | bool):
         raise FileNotFoundError(f"proposal classifier {path} not found")
     from .model.classifier import load_classifier
 
-    return load_classifier(path)[0]
+    return load_classifier(path)[0].fuse_batchnorm()  # inference only
 
 
 def reclassify(classifier: Any, frame: PreparedFrame, preds: list) -> list:
@@ -179,6 +179,9 @@ class ShapeDetector:
     frustum, its height above the measured floor, the 2D box and the first pass's output:
     True = the packaged ``weights/classifier.pt`` (skipped with a warning if missing),
     False = off (the network's class head decides), or a path.
+    ``trace``: run the network through frozen TorchScript graphs (CPU; same outputs, less
+    per-op overhead, and the GIL is free while they run, so the node's two pipeline threads
+    and ``workers`` really overlap; see :mod:`shape_detector.model.traced`); False = eager.
     ``refine``: a class-given second pass for class-agnostic frustums (built-in proposals,
     or given boxes without a class) whose score (the classifier's, else the first pass's)
     reaches ``refine_min_score``: they run again with their decided class as the
@@ -208,6 +211,7 @@ class ShapeDetector:
         refine: bool = True,
         refine_min_score: float = 0.3,
         classifier: str | Path | bool = True,
+        trace: bool = True,
     ) -> None:
         from .model.predictor import FrustumPredictor
 
@@ -219,7 +223,7 @@ class ShapeDetector:
             )
         self.weights = path
         self.predictor = FrustumPredictor(
-            path, device=device, num_threads=num_threads, workers=workers, precision=precision
+            path, device=device, num_threads=num_threads, workers=workers, precision=precision, trace=trace
         )
         self.num_points = int(self.predictor.config.num_points)
         self.score_threshold = float(score_threshold)
@@ -424,7 +428,9 @@ class ShapeDetector:
 
     def warm_up(self) -> None:
         """Run the pipeline once on a tiny synthetic frame (floor + a box, 160x120), so the
-        first real frame does not pay torch's and OpenCV's first-call costs."""
+        first real frame does not pay torch's and OpenCV's first-call costs, nor the
+        tracing of the network's graphs (:meth:`FrustumPredictor.warm_up`)."""
+        self.predictor.warm_up()
         h, w = 120, 160
         K = np.array([[130.0, 0.0, 79.5], [0.0, 130.0, 59.5], [0.0, 0.0, 1.0]])
         v = np.arange(h, dtype=np.float64)[:, None] - K[1, 2]

@@ -139,9 +139,12 @@ def test_first_pass_in_the_first_stage_gives_the_same_objects(scene):
 def test_second_pass_with_cached_segmentation_features_is_the_same(scene, workers):
     """The class one-hot enters the network after the segmentation PointNet, so the second
     pass may reuse the first pass's features: same boxes, masks and primitives."""
+    from shape_detector.model.predictor import FrustumPredictor
+
     det = ShapeDetector(score_threshold=0.0, classifier=False, refine=False, workers=workers)
     prep = det.prepare(scene.rgb, scene.depth, scene.K)
-    pred = det.predictor
+    # eager, so the hooks below see which modules run (the traced graphs run without Python)
+    pred = FrustumPredictor(det.weights, workers=workers, trace=False)
     plain = pred.predict(prep.frustums, [None] * len(prep.frustums))
     kept = pred.predict(prep.frustums, [None] * len(prep.frustums), keep_features=True)
     assert plain[0].seg_features is None

@@ -44,11 +44,15 @@ def bench_network(
     threads: int | None = None,
     workers: int = 1,
     precision: str = "fp32",
+    trace: bool = True,
 ) -> dict:
     """Median / mean ms per frame (one batched ``predict`` of ``count`` frustums).
 
     ``workers``: threads the batch is split over (:class:`FrustumPredictor`); ``precision``
-    'fp32' or 'bf16'.
+    'fp32' or 'bf16'; ``trace``: TorchScript graphs (default) or the eager forward.
+    Then the largest count once more beside a busy pure-Python thread, traced and eager, one
+    worker (``beside_python``): the node's other pipeline stage is such a thread for part of
+    its time.
 
     ``threads`` is an alias of ``num_threads`` (used when not None).
 
@@ -67,7 +71,9 @@ def bench_network(
         torch.set_num_threads(int(num_threads))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        pred = FrustumPredictor(weights, device=device, num_threads=num_threads, workers=workers, precision=precision)
+        pred = FrustumPredictor(
+            weights, device=device, num_threads=num_threads, workers=workers, precision=precision, trace=trace
+        )
     n_pts = int(num_points or pred.num_points)
     rng = np.random.default_rng(0)
     results = {}
@@ -82,11 +88,26 @@ def bench_network(
             print(
                 f"network: {c:3d} objects/frame  {med:7.2f} ms/frame (median of {repeats})  "
                 f"{1000.0 / med:6.1f} frames/s  cpu {results[int(c)]['cpu_ms']:.1f} ms  "
-                f"[{pred.device}, {torch.get_num_threads()} threads, {pred.workers} workers, {n_pts} pts, {pred.precision}]"
+                f"[{pred.device}, {torch.get_num_threads()} threads, {pred.workers} workers, {n_pts} pts, {pred.precision}, "
+                f"{'traced' if trace else 'eager'}]"
             )
     builtin = _bench_builtin_path(pred, counts, n_pts, rng, repeats, warmup, verbose)
+    beside = {}
+    if pred.device.type == "cpu":
+        c = int(max(counts))
+        fr = _fake_frustums(c, n_pts, rng)
+        cls = [i % pred.config.num_classes for i in range(c)]
+        for name in ("traced", "eager"):  # one worker, as in the node's pipeline
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                p = FrustumPredictor(weights, device=device, workers=1, precision=precision, trace=name == "traced")
+            beside[name] = float(np.median(_beside_busy_python(lambda: p.predict(fr, cls), warmup=2, repeats=3)))
+        if verbose:
+            print(f"network beside a busy pure-Python thread, {c} objects/frame, 1 worker: traced {beside['traced']:.1f} ms, "
+                  f"eager {beside['eager']:.1f} ms (the eager forward waits for the GIL at every op)")
     return {
         "builtin_path": builtin,
+        "beside_python": beside,
         "device": str(pred.device),
         "num_threads": torch.get_num_threads(),
         "workers": pred.workers,
@@ -114,16 +135,37 @@ def _timed(run, warmup: int, repeats: int, cuda: bool) -> tuple[list[float], lis
     return wall, cpu
 
 
+def _beside_busy_python(run, warmup: int, repeats: int) -> list[float]:
+    """Wall-clock ms of ``repeats`` calls of ``run`` while another thread runs pure Python."""
+    import threading
+
+    stop = threading.Event()
+
+    def spin() -> None:
+        x = 0
+        while not stop.is_set():
+            for _ in range(1000):
+                x += 1
+
+    t = threading.Thread(target=spin, daemon=True)
+    t.start()
+    try:
+        return _timed(run, warmup, repeats, False)[0]
+    finally:
+        stop.set()
+        t.join()
+
+
 def _bench_builtin_path(pred, counts, n_pts: int, rng, repeats: int, warmup: int, verbose: bool) -> dict:
     """ms per frame of the network work on built-in proposals: the class-agnostic first pass,
     the packaged proposal classifier and the class-given second pass of every frustum (the
     detector's worst case: ``refine_min_score`` 0). Empty when no classifier is packaged."""
-    from ..detector import DEFAULT_CLASSIFIER
-    from .classifier import frame_inputs, load_classifier
+    from ..detector import DEFAULT_CLASSIFIER, _load_classifier
+    from .classifier import frame_inputs
 
     if not DEFAULT_CLASSIFIER.is_file():
         return {}
-    clf = load_classifier(DEFAULT_CLASSIFIER)[0]
+    clf = _load_classifier(True)  # as the detector loads it
     out = {}
     for c in counts:
         fr = _fake_frustums(int(c), n_pts, rng)

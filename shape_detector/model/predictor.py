@@ -32,7 +32,7 @@ from ..types import Cuboid
 from .config import PRECISIONS, ModelConfig
 from .io import default_weights_path, load_weights
 from .network import FrustumShapeNet
-from .primitives import primitive_params
+from .traced import TracedForward
 
 BACKGROUND = "background"
 
@@ -168,7 +168,9 @@ class FrustumPredictor:
     (bfloat16 autocast: about 2x faster on CPUs with AMX / AVX512-BF16 for large batches,
     much slower on those without; boxes differ slightly, see the README's speed section) or
     ``"auto"`` (bf16 for batches of at least :data:`AUTO_BF16_MIN_BATCH` frustums on a CPU
-    with AMX, else fp32).
+    with AMX, else fp32). ``trace`` (CPU): run the forward through frozen TorchScript graphs
+    (:mod:`.traced`; same outputs, less overhead, and no GIL held while they run, which lets
+    the node's two pipeline threads overlap); False = eager.
     """
 
     def __init__(
@@ -179,10 +181,12 @@ class FrustumPredictor:
         workers: int = 1,
         min_chunk: int = 3,
         precision: str = "fp32",
+        trace: bool = True,
     ) -> None:
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
         self.precision = precision
+        self._trace = bool(trace) and resolve_device(device).type == "cpu"
         if num_threads is not None:
             torch.set_num_threads(int(num_threads))
         self.device = resolve_device(device)
@@ -203,6 +207,7 @@ class FrustumPredictor:
         if weights is None:
             torch.manual_seed(0)
             self.model = FrustumShapeNet(ModelConfig()).to(self.device).eval().fuse_batchnorm()
+            self._forward = TracedForward(self.model, enabled=self._trace)
             self.weights_path = None
         else:
             self.load_weights(weights)
@@ -210,7 +215,25 @@ class FrustumPredictor:
     def load_weights(self, path: str | Path) -> None:
         self.model, self.meta = load_weights(path, self.device)
         self.model.fuse_batchnorm()  # inference only: BatchNorm folded into the linear layers
+        self._forward = TracedForward(self.model, enabled=self._trace)
         self.weights_path = Path(path)
+
+    def warm_up(self) -> None:
+        """Trace now, on dummy frustums, the graphs a frame may need (first pass and
+        feature-reusing second pass, in each precision this predictor uses, with caches of
+        either dtype), so that no camera frame pays the tracing (~0.2 s a graph)."""
+        n, nc = self.num_points, self.config.num_classes
+        sizes = [1] if self.bf16_min_batch is None else [max(1, self.bf16_min_batch)]
+        if self.bf16_min_batch:  # auto: small batches in fp32, large ones in bfloat16
+            sizes = [1, self.bf16_min_batch]
+        caches = []
+        for b in sizes:
+            out = self.forward_arrays(np.zeros((b, n, 6), np.float32), np.zeros((b, nc), np.float32), keep_features=True)
+            caches.append((out["seg_glob"], out["seg_local"]))
+        for b in sizes:
+            for glob, local in caches:
+                cache = (glob[:1].expand(b, *glob.shape[1:]), local[:1].expand(b, *local.shape[1:]))
+                self.forward_arrays(np.zeros((b, n, 6), np.float32), np.eye(b, nc, dtype=np.float32), cache)
 
     @property
     def config(self) -> ModelConfig:
@@ -241,37 +264,14 @@ class FrustumPredictor:
         (the segmentation PointNet is skipped); ``keep_features`` adds them to the result
         (torch tensors, not arrays).
         """
-        cfg = self.config
         pts = torch.as_tensor(np.asarray(points, np.float32), device=self.device)
         oh = torch.as_tensor(np.asarray(one_hot, np.float32), device=self.device)
         bf16 = self.bf16_min_batch is not None and pts.shape[0] >= self.bf16_min_batch
-        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=bf16):
-            # autocast is per thread: set in each worker
-            out = self.model(pts, oh, random_gather=False, seg_cache=seg_cache)
-        T = self.model.cls_temperature.clamp_min(1e-3)
-        probs = torch.softmax(out["cls_logits"] / T, dim=1)
-        seg_prob = torch.softmax(out["seg_logits"], dim=-1)[..., 1]
-        cluster, heading, size = out["box_cluster"], out["box_heading"], out["box_size"]
-        prims = primitive_params(out["shape_raw"], size, **cfg.primitive_kwargs())
-        heading_conf = torch.softmax(out["heading_scores"].float(), dim=1).amax(1)
-        fg = seg_prob > 0.5
-        fg_score = (seg_prob * fg).sum(1) / fg.sum(1).clamp_min(1)
-        res = {
-            "probs": probs,
-            "seg_prob": seg_prob,
-            "center": out["center"],
-            "heading": heading,
-            "heading_conf": heading_conf,
-            "size": size,
-            "cluster": cluster,
-            "fg_score": fg_score,
-            "prim_center": prims["center"],
-            "prim_size": prims["size"],
-            "prim_rotation": prims["rotation"],
-        }
-        arrays: dict = {k: v.detach().float().cpu().numpy() for k, v in res.items()}
+        out = self._forward(pts, oh, seg_cache, bf16)
+        seg_glob, seg_local = out.pop("seg_glob"), out.pop("seg_local")
+        arrays: dict = {k: (v if v.device.type == "cpu" else v.cpu()).numpy() for k, v in out.items()}
         if keep_features:
-            arrays["seg_glob"], arrays["seg_local"] = out["seg_glob"], out["seg_local"]
+            arrays["seg_glob"], arrays["seg_local"] = seg_glob, seg_local
         return arrays
 
     def predict(
