@@ -429,8 +429,9 @@ class ShapeDetector:
     def warm_up(self) -> None:
         """Run the pipeline once on a tiny synthetic frame (floor + a box, 160x120), so the
         first real frame does not pay torch's and OpenCV's first-call costs, nor the
-        tracing of the network's graphs (:meth:`FrustumPredictor.warm_up`)."""
-        self.predictor.warm_up()
+        tracing of the network's graphs and its kernels for each batch size up to
+        ``max_objects`` (:meth:`FrustumPredictor.warm_up`)."""
+        self.predictor.warm_up(max_batch=self.max_objects)
         h, w = 120, 160
         K = np.array([[130.0, 0.0, 79.5], [0.0, 130.0, 59.5], [0.0, 0.0, 1.0]])
         v = np.arange(h, dtype=np.float64)[:, None] - K[1, 2]
