@@ -104,8 +104,10 @@ def classifier_option(text: str | None) -> str | bool | None:
     return False if text == "none" else text
 
 
-def _load_classifier(spec: str | Path | bool):
-    """The proposal classifier for ``ShapeDetector(classifier=spec)``, or None."""
+def _load_classifier(spec: str | Path | bool, precision: str = "fp32", trace: bool = True):
+    """The proposal classifier for ``ShapeDetector(classifier=spec)`` (a
+    :class:`~shape_detector.model.classifier.ClassifierPredictor` with that ``precision`` and
+    ``trace``), or None."""
     if spec is False or spec is None:
         return None
     path = DEFAULT_CLASSIFIER if spec is True else Path(spec)
@@ -114,9 +116,9 @@ def _load_classifier(spec: str | Path | bool):
             warnings.warn(f"no packaged proposal classifier at {path}; the network's class head decides", stacklevel=3)
             return None
         raise FileNotFoundError(f"proposal classifier {path} not found")
-    from .model.classifier import load_classifier
+    from .model.classifier import ClassifierPredictor, load_classifier
 
-    return load_classifier(path)[0].fuse_batchnorm()  # inference only
+    return ClassifierPredictor(load_classifier(path)[0], precision=precision, trace=trace)
 
 
 def reclassify(classifier: Any, frame: PreparedFrame, preds: list) -> list:
@@ -248,7 +250,7 @@ class ShapeDetector:
         self.snap_primitives = bool(snap_primitives)
         self.refine = bool(refine)
         self.refine_min_score = float(refine_min_score)
-        self.classifier = _load_classifier(classifier)
+        self.classifier = _load_classifier(classifier, precision, trace)
 
     # -- stages -----------------------------------------------------------------------
     def _get_proposer(self):
@@ -432,6 +434,8 @@ class ShapeDetector:
         tracing of the network's graphs and its kernels for each batch size up to
         ``max_objects`` (:meth:`FrustumPredictor.warm_up`)."""
         self.predictor.warm_up(max_batch=self.max_objects)
+        if self.classifier is not None and hasattr(self.classifier, "warm_up"):
+            self.classifier.warm_up(max_batch=self.max_objects)
         h, w = 120, 160
         K = np.array([[130.0, 0.0, 79.5], [0.0, 130.0, 59.5], [0.0, 0.0, 1.0]])
         v = np.arange(h, dtype=np.float64)[:, None] - K[1, 2]

@@ -174,3 +174,33 @@ def test_tried_objects_by_2d_overlap():
                _gt([0, 0, 0], [1, 1, 1], "lamp", box2d=(20, 0, 30, 10))]  # not a class: never tried
     got = tried_objects([(0, 0, 10, 9), (20, 0, 30, 10), (50, 50, 60, 60)], objects)
     assert got == {0: 0}
+
+
+@pytest.mark.parametrize("trace", [True, False])
+def test_classifier_predictor_matches_the_classifier(trace):
+    from shape_detector.model.classifier import GLOBAL_FEATURES, POINT_CHANNELS, ClassifierPredictor
+
+    torch.manual_seed(0)
+    model = ProposalClassifier(ClassifierConfig(widths=(8, 16), fc=(16,), num_points=32)).eval()
+    with torch.no_grad():  # BatchNorm statistics that folding must carry over
+        for m in model.modules():
+            if isinstance(m, torch.nn.BatchNorm1d):
+                m.running_mean.uniform_(-0.3, 0.3)
+                m.running_var.uniform_(0.5, 2.0)
+    model.temperature.fill_(1.3)
+    rng = np.random.default_rng(0)
+    p = rng.normal(0, 1, (6, 50, POINT_CHANNELS)).astype(np.float32)  # 50 points: 32 evenly spaced used
+    g = rng.normal(0, 1, (6, len(GLOBAL_FEATURES))).astype(np.float32)
+    want = model.probabilities(p, g)
+    import copy
+
+    fp32 = ClassifierPredictor(copy.deepcopy(model), precision="fp32", trace=trace)
+    np.testing.assert_allclose(fp32.probabilities(p, g), want, atol=1e-6)
+    np.testing.assert_allclose(fp32.probabilities(p[:1], g[:1]), want[:1], atol=1e-6)
+    bf16 = ClassifierPredictor(copy.deepcopy(model), precision="bf16", trace=trace)
+    got = bf16.probabilities(p, g)
+    np.testing.assert_allclose(got, want, atol=0.05)  # bfloat16 arithmetic
+    np.testing.assert_allclose(got.sum(1), 1.0, atol=1e-6)  # still a distribution, computed in float32
+    assert fp32.probabilities(p[:0], g[:0]).shape == (0, NUM_CLASSES + 1)
+    fp32.warm_up(max_batch=3)
+    assert fp32._run.traced == (1 if trace else 0)  # one graph serves every batch size

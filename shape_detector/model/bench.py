@@ -165,7 +165,7 @@ def _bench_builtin_path(pred, counts, n_pts: int, rng, repeats: int, warmup: int
 
     if not DEFAULT_CLASSIFIER.is_file():
         return {}
-    clf = _load_classifier(True)  # as the detector loads it
+    clf = _load_classifier(True, pred.precision, pred._forward.enabled)  # as the detector loads it
     out = {}
     for c in counts:
         fr = _fake_frustums(int(c), n_pts, rng)

@@ -32,6 +32,7 @@ from torch import nn
 
 from ..classes import NUM_CLASSES
 from .pointnet import FCHead, SharedMLP
+from .traced import TracedModule
 
 CLASSIFIER_FORMAT = "shape_detector.proposal_classifier.v1"
 
@@ -180,6 +181,11 @@ class ProposalClassifier(nn.Module):
                 m.fuse_batchnorm()
         return self
 
+    def calibrated(self, points: torch.Tensor, globals_: torch.Tensor) -> tuple[torch.Tensor]:
+        """``(probabilities (B, num_classes + 1),)``: the temperature-scaled softmax of
+        :meth:`forward`, in float32 (a one-tuple, as :class:`~.traced.TracedModule` runs it)."""
+        return (torch.softmax(self(points, globals_).float() / self.temperature.clamp_min(1e-3), 1),)
+
     @torch.inference_mode()
     def probabilities(self, points: np.ndarray, globals_: np.ndarray) -> np.ndarray:
         """Calibrated probabilities (B, num_classes + 1), background last (eval mode), of
@@ -187,11 +193,64 @@ class ProposalClassifier(nn.Module):
         used."""
         if len(points) == 0:
             return np.zeros((0, self.config.num_classes + 1), np.float64)
-        n = points.shape[1]
-        if n > self.config.num_points:
-            points = points[:, np.linspace(0, n - 1, self.config.num_points).round().astype(np.int64)]
-        logits = self(torch.as_tensor(points, dtype=torch.float32), torch.as_tensor(globals_, dtype=torch.float32))
-        return torch.softmax(logits / self.temperature.clamp_min(1e-3), 1).double().numpy()
+        pts, g = _as_inputs(points, globals_, self.config.num_points)
+        return self.calibrated(pts, g)[0].double().numpy()
+
+
+def _as_inputs(points: np.ndarray, globals_: np.ndarray, num_points: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """float32 tensors of :func:`candidate_inputs`' arrays, with ``num_points`` evenly spaced
+    points per candidate where it has more."""
+    n = points.shape[1]
+    if n > num_points:
+        points = points[:, np.linspace(0, n - 1, num_points).round().astype(np.int64)]
+    return torch.as_tensor(points, dtype=torch.float32), torch.as_tensor(globals_, dtype=torch.float32)
+
+
+class _Calibrated(nn.Module):
+    def __init__(self, model: ProposalClassifier) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, points: torch.Tensor, globals_: torch.Tensor) -> tuple[torch.Tensor]:
+        return self.model.calibrated(points, globals_)
+
+
+class ClassifierPredictor:
+    """Inference with a loaded :class:`ProposalClassifier`, as
+    :class:`~shape_detector.model.predictor.FrustumPredictor` runs the network: BatchNorm
+    folded, frozen TorchScript graphs (``trace``: less overhead, no GIL held while they run),
+    and bfloat16 for batches from the predictor's threshold on under ``precision``
+    (``"auto"``: 4 or more candidates on a CPU with AMX). Same :meth:`probabilities` as the
+    classifier; ``model`` is folded in place (eval mode; it can no longer be trained)."""
+
+    def __init__(self, model: ProposalClassifier, precision: str = "fp32", trace: bool = True) -> None:
+        from .predictor import bf16_min_batch
+
+        self.model = model.eval().fuse_batchnorm()
+        self.precision = precision
+        self.bf16_min_batch = bf16_min_batch(precision, torch.device("cpu"))
+        self._run = TracedModule(_Calibrated(self.model), enabled=trace)
+
+    @property
+    def config(self) -> ClassifierConfig:
+        return self.model.config
+
+    def warm_up(self, max_batch: int = 1) -> None:
+        """Trace the graphs and build the kernels for every batch of 1 to ``max_batch``
+        candidates now (see :meth:`FrustumPredictor.warm_up
+        <shape_detector.model.predictor.FrustumPredictor.warm_up>`)."""
+        n, g = self.config.num_points, len(GLOBAL_FEATURES)
+        for b in range(1, max(1, int(max_batch)) + 1):
+            self.probabilities(np.zeros((b, n, POINT_CHANNELS), np.float32), np.zeros((b, g), np.float32))
+
+    @torch.inference_mode()
+    def probabilities(self, points: np.ndarray, globals_: np.ndarray) -> np.ndarray:
+        """As :meth:`ProposalClassifier.probabilities`."""
+        if len(points) == 0:
+            return np.zeros((0, self.config.num_classes + 1), np.float64)
+        pts, g = _as_inputs(points, globals_, self.config.num_points)
+        bf16 = self.bf16_min_batch is not None and len(pts) >= self.bf16_min_batch
+        return self._run(pts, g, bf16=bf16)[0].double().numpy()
 
 
 def save_classifier(model: ProposalClassifier, path, meta: dict[str, Any] | None = None) -> None:

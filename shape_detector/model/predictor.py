@@ -42,6 +42,19 @@ BACKGROUND = "background"
 AUTO_BF16_MIN_BATCH = 4
 
 
+def bf16_min_batch(precision: str, device: torch.device) -> int | None:
+    """The batch size from which a forward runs in bfloat16 under ``precision``: None =
+    never (``"fp32"``, or ``"auto"`` on a device without AMX), 0 = always (``"bf16"``),
+    :data:`AUTO_BF16_MIN_BATCH` for ``"auto"`` on a CPU with AMX."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+    if precision == "bf16":
+        return 0
+    if precision == "auto" and device.type == "cpu" and cpu_has_amx():
+        return AUTO_BF16_MIN_BATCH
+    return None
+
+
 def cpu_has_amx() -> bool:
     """Whether this CPU has AMX tiles (bfloat16 matrix units); False when torch cannot tell."""
     try:
@@ -183,17 +196,13 @@ class FrustumPredictor:
         precision: str = "fp32",
         trace: bool = True,
     ) -> None:
-        if precision not in PRECISIONS:
-            raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
         self.precision = precision
         self._trace = bool(trace) and resolve_device(device).type == "cpu"
         if num_threads is not None:
             torch.set_num_threads(int(num_threads))
         self.device = resolve_device(device)
         #: the batch size from which forwards run in bfloat16 (None: never, 0: always)
-        self.bf16_min_batch: int | None = {"fp32": None, "bf16": 0}.get(precision)
-        if precision == "auto" and self.device.type == "cpu" and cpu_has_amx():
-            self.bf16_min_batch = AUTO_BF16_MIN_BATCH
+        self.bf16_min_batch = bf16_min_batch(precision, self.device)
         self.workers = max(1, int(workers)) if self.device.type == "cpu" else 1
         self.min_chunk = max(1, int(min_chunk))
         self._pool = None

@@ -94,23 +94,19 @@ class _Cached(nn.Module):
         return inference_outputs(self.model, points, one_hot, (seg_glob, seg_local))
 
 
-class TracedForward:
-    """``forward(points, one_hot, seg_cache, bf16)`` -> :func:`inference_outputs` as a dict, through a
-    frozen TorchScript graph traced on first use of each variant (thread-safe), or the eager
-    ``model`` when ``enabled`` is False or tracing failed. ``model``: an eval-mode network
-    (BatchNorm folded or not); it must not change afterwards (call :meth:`reset` if it does).
+class TracedModule:
+    """``module(*args)`` (tensors in, a tuple of tensors out) through frozen TorchScript graphs,
+    one per variant: bfloat16 autocast or not, and each argument's dtype and shape after the
+    batch axis (the batch size stays dynamic). A variant is traced on first use (thread-safe);
+    ``enabled=False``, or a tracing failure (one warning), runs the eager ``module``.
+    ``module`` must be in eval mode and must not change afterwards.
     """
 
-    def __init__(self, model: nn.Module, enabled: bool = True) -> None:
-        self.model = model
+    def __init__(self, module: nn.Module, enabled: bool = True) -> None:
+        self.module = module.eval()
         self.enabled = bool(enabled) and hasattr(torch, "jit")
         self._graphs: dict[tuple, torch.jit.ScriptModule] = {}
         self._lock = threading.Lock()
-
-    def reset(self) -> None:
-        """Drop the traced graphs (after the model's weights changed)."""
-        with self._lock:
-            self._graphs.clear()
 
     @property
     def traced(self) -> int:
@@ -119,9 +115,9 @@ class TracedForward:
 
     def _eager(self, args: tuple[torch.Tensor, ...], bf16: bool) -> tuple[torch.Tensor, ...]:
         with torch.autocast(args[0].device.type, dtype=torch.bfloat16, enabled=bf16):
-            return inference_outputs(self.model, args[0], args[1], None if len(args) == 2 else (args[2], args[3]))
+            return self.module(*args)
 
-    def _graph(self, key: tuple, args: tuple[torch.Tensor, ...]):
+    def _graph(self, key: tuple, args: tuple[torch.Tensor, ...], bf16: bool):
         graph = self._graphs.get(key)
         if graph is not None or not self.enabled:
             return graph
@@ -129,20 +125,45 @@ class TracedForward:
             graph = self._graphs.get(key)
             if graph is None and self.enabled:
                 try:
-                    wrapper = (_Cached if len(args) == 4 else _Plain)(self.model).eval()
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")  # TracerWarning / torch.jit's deprecation notice
-                        with torch.autocast(args[0].device.type, dtype=torch.bfloat16, enabled=key[0]):
-                            graph = torch.jit.trace(wrapper, args, check_trace=False)
+                        with torch.autocast(args[0].device.type, dtype=torch.bfloat16, enabled=bf16):
+                            graph = torch.jit.trace(self.module, args, check_trace=False)
                         # frozen outside autocast: folding constants under it rounds them differently
                         graph = torch.jit.freeze(graph)
                     self._graphs[key] = graph
                 except Exception as e:  # noqa: BLE001 - any tracing failure: run eagerly
-                    self._eager(args, key[0])  # raises if the inputs themselves are wrong
+                    self._eager(args, bf16)  # raises if the inputs themselves are wrong
                     self.enabled = False
                     warnings.warn(f"TorchScript tracing failed ({type(e).__name__}: {e}); running eagerly", stacklevel=3)
                     graph = None
         return graph
+
+    def __call__(self, *args: torch.Tensor, bf16: bool = False) -> tuple[torch.Tensor, ...]:
+        key = (bool(bf16), tuple((a.dtype, tuple(a.shape[1:])) for a in args))
+        graph = self._graph(key, args, bool(bf16))
+        return graph(*args) if graph is not None else self._eager(args, bool(bf16))
+
+
+class TracedForward:
+    """``forward(points, one_hot, seg_cache, bf16)`` -> :func:`inference_outputs` as a dict,
+    through :class:`TracedModule` graphs of the first pass and of the feature-reusing second
+    pass. ``model``: an eval-mode network; ``enabled=False``: eager."""
+
+    def __init__(self, model: nn.Module, enabled: bool = True) -> None:
+        self.model = model
+        self._plain = TracedModule(_Plain(model), enabled)
+        self._cached = TracedModule(_Cached(model), enabled)
+
+    @property
+    def enabled(self) -> bool:
+        """False once tracing is off (asked for, or failed for either pass)."""
+        return self._plain.enabled and self._cached.enabled
+
+    @property
+    def traced(self) -> int:
+        """How many graph variants are traced so far."""
+        return self._plain.traced + self._cached.traced
 
     def __call__(
         self,
@@ -153,8 +174,8 @@ class TracedForward:
     ) -> dict[str, torch.Tensor]:
         """:func:`inference_outputs` as a dict, for (B,N,C) ``points`` and (B,K) ``one_hot``;
         ``seg_cache`` = (seg_glob (B,G), seg_local (B,N,H)) of an earlier pass over the same points."""
-        args = (points, one_hot) if seg_cache is None else (points, one_hot, *seg_cache)
-        key = (bool(bf16), int(points.shape[1]), tuple(a.dtype for a in args))
-        graph = self._graph(key, args)
-        outs = graph(*args) if graph is not None else self._eager(args, bf16)
+        if seg_cache is None:
+            outs = self._plain(points, one_hot, bf16=bf16)
+        else:
+            outs = self._cached(points, one_hot, *seg_cache, bf16=bf16)
         return dict(zip(OUTPUT_KEYS, outs))
