@@ -197,10 +197,10 @@ class FrustumPredictor:
         trace: bool = True,
     ) -> None:
         self.precision = precision
-        self._trace = bool(trace) and resolve_device(device).type == "cpu"
         if num_threads is not None:
             torch.set_num_threads(int(num_threads))
         self.device = resolve_device(device)
+        self._trace = bool(trace) and self.device.type == "cpu"
         #: the batch size from which forwards run in bfloat16 (None: never, 0: always)
         self.bf16_min_batch = bf16_min_batch(precision, self.device)
         self.workers = max(1, int(workers)) if self.device.type == "cpu" else 1
