@@ -91,7 +91,7 @@ def bench_network(
                 f"[{pred.device}, {torch.get_num_threads()} threads, {pred.workers} workers, {n_pts} pts, {pred.precision}, "
                 f"{'traced' if trace else 'eager'}]"
             )
-    builtin = _bench_builtin_path(pred, counts, n_pts, rng, repeats, warmup, verbose)
+    builtin = _bench_builtin_path(pred, counts, n_pts, rng, repeats, warmup, verbose, trace)
     beside = {}
     if pred.device.type == "cpu":
         c = int(max(counts))
@@ -156,7 +156,9 @@ def _beside_busy_python(run, warmup: int, repeats: int) -> list[float]:
         t.join()
 
 
-def _bench_builtin_path(pred, counts, n_pts: int, rng, repeats: int, warmup: int, verbose: bool) -> dict:
+def _bench_builtin_path(
+    pred, counts, n_pts: int, rng, repeats: int, warmup: int, verbose: bool, trace: bool = True
+) -> dict:
     """ms per frame of the network work on built-in proposals: the class-agnostic first pass,
     the packaged proposal classifier and the class-given second pass of every frustum (the
     detector's worst case: ``refine_min_score`` 0). Empty when no classifier is packaged."""
@@ -165,7 +167,7 @@ def _bench_builtin_path(pred, counts, n_pts: int, rng, repeats: int, warmup: int
 
     if not DEFAULT_CLASSIFIER.is_file():
         return {}
-    clf = _load_classifier(True, pred.precision, pred._forward.enabled)  # as the detector loads it
+    clf = _load_classifier(True, pred.precision, trace)  # as the detector loads it
     out = {}
     for c in counts:
         fr = _fake_frustums(int(c), n_pts, rng)

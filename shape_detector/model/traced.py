@@ -4,9 +4,10 @@ The eager forward of :class:`~shape_detector.model.network.FrustumShapeNet` is a
 thousand small torch ops, each dispatched from Python under the GIL. Beside another
 Python thread (the node's pipeline runs the proposer in one thread while the network runs
 in the other) every op waits for that thread to let go of the GIL: on the 2-core Intel VM a
-10-frustum forward took 12 ms alone, 20 ms beside the proposer and 680-900 ms beside a
+10-frustum forward took 12 ms alone, 20 ms beside the proposer and 680-1070 ms beside a
 pure-Python busy loop. A traced and frozen graph runs in TorchScript's interpreter,
-which releases the GIL for the whole call (28 ms beside the same busy loop), and skips the
+which releases the GIL for the whole call (13 ms beside the proposer, 32 ms beside the
+busy loop, where only the Python around the call still waits), and skips the
 per-op Python overhead (10 frustums, one thread: fp32 25.7 -> 23.1 ms; bfloat16 11.2 ->
 8.4 ms, the frozen graph casting the weights once instead of at every call).
 
@@ -14,7 +15,7 @@ Outputs are bit-identical to the eager forward (the graphs are traced from it, p
 variant: with or without a segmentation-feature cache, fp32 or bfloat16 autocast, the
 inputs' dtypes and point count); the batch size stays dynamic. ``torch.jit`` is
 deprecated in favour of ``torch.compile``, which needs a C++ toolchain at run time and
-compiles for tens of seconds; where tracing is unavailable or fails, :class:`TracedForward`
+compiles for tens of seconds; where tracing is unavailable or fails, :class:`TracedModule`
 falls back to the eager module (with one warning).
 """
 
@@ -151,7 +152,6 @@ class TracedForward:
     pass. ``model``: an eval-mode network; ``enabled=False``: eager."""
 
     def __init__(self, model: nn.Module, enabled: bool = True) -> None:
-        self.model = model
         self._plain = TracedModule(_Plain(model), enabled)
         self._cached = TracedModule(_Cached(model), enabled)
 
