@@ -95,3 +95,44 @@ def test_tiny_overfit_all_losses_decrease():
     assert last["total"] < 0.35 * first["total"], (first["total"], last["total"])
     for k in ("seg", "center", "corner", "size_res", "heading_cls", "coverage", "consistency", "part", "volume", "cls"):
         assert last[k] < first[k], (k, first[k], last[k])
+
+
+def test_predicted_box_shape_frame_matches_gt_frame_for_a_perfect_box_and_sees_box_errors():
+    """shape_frame="predicted_box" compares unit-diagonal frames: with the network's box equal
+    to the GT box it gives exactly the GT-frame losses; a box 30% too tall moves the GT parts
+    relative to the primitives and changes the losses."""
+    ds = _data(2, neg=0)
+    data = TensorData(ds, torch.device("cpu"), 10)
+    net = FrustumShapeNet(ModelConfig(**SMALL))
+    b = data.batch(torch.arange(data.n), TrainConfig(), augment=False, one_hot_mode="given")
+    with torch.no_grad():
+        out = net(b["points"], b["one_hot"])
+    w = dict(occupancy=1.0)
+    from shape_detector.model.losses import LossWeights
+
+    def shape_losses(o, frame):
+        torch.manual_seed(7)  # the occupancy term draws its sample points
+        L = compute_losses(o, b, net.mean_sizes, "shape", LossWeights.from_dict(w), shape_frame=frame)
+        return {k: float(L[k]) for k in ("coverage", "consistency", "occupancy")}
+
+    perfect = dict(out, box_size=b["size"].clone())
+    ref = shape_losses(perfect, "gt_box")
+    same = shape_losses(perfect, "predicted_box")
+    for k in ref:
+        assert same[k] == pytest.approx(ref[k], rel=1e-4, abs=1e-7), k
+    tall = dict(out, box_size=b["size"] * torch.tensor([1.0, 1.0, 1.3]))
+    moved = shape_losses(tall, "predicted_box")
+    assert any(abs(moved[k] - ref[k]) > 1e-3 * max(ref[k], 1e-6) for k in ref)
+    # "both": the mean of the two frames' terms
+    torch.manual_seed(7)
+    gt_tall = compute_losses(tall, b, net.mean_sizes, "shape", LossWeights.from_dict(w), shape_frame="gt_box")
+    torch.manual_seed(7)
+    L = compute_losses(tall, b, net.mean_sizes, "shape", LossWeights.from_dict(w), shape_frame="predicted_box")
+    torch.manual_seed(7)
+    both = compute_losses(tall, b, net.mean_sizes, "shape", LossWeights.from_dict(w), shape_frame="both")
+    # coverage is deterministic; consistency and occupancy draw samples, which differ per call
+    assert float(both["coverage"]) == pytest.approx(0.5 * (float(gt_tall["coverage"]) + float(L["coverage"])), rel=1e-5)
+    for k in ("consistency", "occupancy"):
+        assert float(both[k]) == pytest.approx(0.5 * (float(gt_tall[k]) + float(L[k])), rel=0.05), k
+    with pytest.raises(ValueError, match="shape_frame"):
+        compute_losses(out, b, net.mean_sizes, "shape", shape_frame="camera")

@@ -242,3 +242,38 @@ def test_reinit_starts_modules_fresh_and_may_change_the_primitive_mapping(ds, tm
     with pytest.raises(ValueError, match="no parameter"):
         train(_cfg(epochs=1, model=dict(SMALL, primitive_param="sigmoid_tanh"), reinit=["nothing_here"]), tr, va,
               tmp_path / "d", seed=4, print_fn=lambda s: None, init_weights=init)
+
+
+def test_shape_anchors_start_at_the_class_templates_and_carry_over(ds, tmp_path):
+    """A model with shape anchors, initialised from one without: the anchors are the class
+    templates of the training data's GT parts and the head's output layer restarts at zero;
+    a later fine-tune from it keeps its anchors."""
+    from shape_detector.model.primitives import primitive_params
+    from shape_detector.model.shape_anchors import class_templates
+
+    tr, va = fds.split_by_frame(ds, 0.34, seed=0)
+    train(_cfg(epochs=1), tr, va, tmp_path / "a", seed=3, print_fn=lambda s: None)
+    anchored = dict(SMALL, shape_anchors=True)
+    logs = []
+    train(_cfg(epochs=1, tasks="shape", model=anchored, trainable=["shape_mlp", "shape_head", "shape_anchor"], lr=1e-9),
+          tr, va, tmp_path / "b", seed=4, print_fn=logs.append, init_weights=tmp_path / "a" / "weights.pt")
+    assert any("shape anchors" in s for s in logs)
+    b, _ = load_weights(tmp_path / "b" / "weights.pt")
+    assert b.config.shape_anchors
+    use = np.where(tr["has_shape"] & ~tr["is_negative"], tr["parts_count"], 0)
+    lo, hi, found = class_templates(tr["parts_center"], tr["parts_size"], tr["parts_rotation"], use, tr["size"],
+                                    tr["class_id"], b.config.num_classes, b.config.num_primitives, seed=4)
+    assert found.any()
+    c = int(np.flatnonzero(found)[0])
+    size = torch.tensor([[1.0, 2.0, 3.0]])
+    p = primitive_params(b.shape_anchor.detach()[c].view(1, -1, 10), size, **b.config.primitive_kwargs())
+    # weights files store float16: raw translations within ~5e-4, i.e. 1e-3 m in a 3 m box
+    np.testing.assert_allclose(p["center"][0].numpy(), 0.5 * (lo[c] + hi[c]) * size.numpy(), atol=2e-3)
+    assert float(b.shape_head.out.weight.detach().abs().max()) < 1e-6
+    assert torch.all(b.shape_anchor.detach()[~torch.as_tensor(found)] == 0)
+    logs = []
+    train(_cfg(epochs=1, tasks="shape", model=anchored, trainable=["shape_head"], lr=1e-9), tr, va, tmp_path / "c",
+          seed=5, print_fn=logs.append, init_weights=tmp_path / "b" / "weights.pt")
+    assert not any("shape anchors" in s for s in logs)
+    c_model, _ = load_weights(tmp_path / "c" / "weights.pt")
+    assert torch.equal(c_model.shape_anchor, b.shape_anchor)

@@ -43,6 +43,9 @@ class ModelConfig:
       box feature only).
     * ``prune_volume_frac``: at inference, primitives whose volume is below this share
       of the predicted box volume are dropped.
+    * ``shape_anchors``: the shape head's raw output is added to a learnt per-class anchor
+      row (``FrustumShapeNet.shape_anchor``, started from class templates of the GT parts,
+      see :mod:`.shape_anchors`); the given class's, else the class head's argmax.
     """
 
     num_points: int = 512
@@ -72,6 +75,7 @@ class ModelConfig:
     # primitive mapping, see shape_detector.model.primitives.primitive_params
     primitive_min_size_frac: float = 0.01
     primitive_param: str = "exp_linear"
+    shape_anchors: bool = False
 
     def primitive_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of :func:`~shape_detector.model.primitives.primitive_params`."""

@@ -76,6 +76,8 @@ class LossWeights:
 
 
 ALL_TASKS = ("box", "shape", "cls")
+#: frames the shape losses can compare primitives and GT parts in (see :func:`compute_losses`)
+SHAPE_FRAMES = ("gt_box", "predicted_box", "both")
 
 
 def parse_tasks(tasks) -> frozenset[str]:
@@ -101,6 +103,51 @@ def _masked_mean(v: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
     return (v * mf).sum() / mf.sum().clamp_min(1.0)
 
 
+def _shape_terms(
+    out: dict[str, torch.Tensor],
+    batch: dict[str, torch.Tensor],
+    idx: torch.Tensor,
+    frame: str,
+    w: "LossWeights",
+    l_nearest: int,
+    consistency_per_face: int,
+    min_size_frac: float,
+    primitive_mode: str,
+) -> dict[str, torch.Tensor]:
+    """The weighted shape terms of the rows ``idx`` in one ``frame`` (see :func:`compute_losses`)."""
+    raw = out["shape_raw"][idx]
+    gsize = batch["size"][idx]
+    # GT parts (canonical frame): centre, size, rotation, validity mask
+    parts = (batch["parts_center"][idx], batch["parts_size"][idx], batch["parts_rotation"][idx],
+             batch["parts_mask"][idx].bool())
+    surface = batch["surface"][idx]
+    if frame == "gt_box":
+        prims = primitive_params(raw, gsize, min_size_frac, primitive_mode)
+        scale = gsize.norm(dim=1)
+        occ_box = gsize
+    else:
+        psize = out["box_size"][idx].detach()
+        pn = psize.norm(dim=1, keepdim=True).clamp_min(1e-6)
+        gn = gsize.norm(dim=1, keepdim=True).clamp_min(1e-6)
+        prims = primitive_params(raw, psize / pn, min_size_frac, primitive_mode)
+        g3 = gn.unsqueeze(-1)
+        parts = (parts[0] / g3, parts[1] / g3, parts[2], parts[3])
+        surface = surface / g3
+        scale = torch.ones_like(gn.squeeze(1))
+        occ_box = torch.maximum(psize / pn, gsize / gn)
+    terms = {
+        "coverage": w.coverage * coverage_loss(surface, prims, l_nearest, scale).mean(),
+        "consistency": w.consistency * consistency_loss(prims, *parts, per_face=consistency_per_face, scale=scale).mean(),
+    }
+    if w.part > 0:
+        terms["part"] = w.part * matched_part_loss(prims, *parts, scale=scale).mean()
+    if w.volume > 0:
+        terms["volume"] = w.volume * volume_consistency_loss(prims, *parts, scale=scale).mean()
+    if w.occupancy > 0:
+        terms["occupancy"] = w.occupancy * occupancy_iou_loss(prims, *parts, occ_box).mean()
+    return terms
+
+
 def compute_losses(
     out: dict[str, torch.Tensor],
     batch: dict[str, torch.Tensor],
@@ -111,8 +158,20 @@ def compute_losses(
     consistency_per_face: int = 25,
     min_size_frac: float = 0.01,
     primitive_mode: str = "exp_linear",
+    shape_frame: str = "gt_box",
 ) -> dict[str, torch.Tensor]:
-    """Weighted loss terms, their sum under ``"total"``, and a few detached accuracies."""
+    """Weighted loss terms, their sum under ``"total"``, and a few detached accuracies.
+
+    ``shape_frame``: where the shape losses compare primitives and GT parts.
+    ``"gt_box"``: both in the GT box's canonical frame, the primitives composed with the GT
+    box size (shape learning decoupled from box errors). ``"predicted_box"``: as the
+    object-frame shape metric and inference see them: the primitives composed with the
+    network's own (detached) box size and scaled to unit box diagonal, the GT parts in the
+    GT box's frame scaled the same way by the GT box; the head learns to place parts where
+    they fall in the box it will be given, box errors included. ``"both"``: the mean of the
+    two."""
+    if shape_frame not in SHAPE_FRAMES:
+        raise ValueError(f"shape_frame must be one of {SHAPE_FRAMES}, not {shape_frame!r}")
     tasks = parse_tasks(tasks)
     w = weights or LossWeights()
     losses: dict[str, torch.Tensor] = {}
@@ -166,23 +225,12 @@ def compute_losses(
         sh = pos & batch["has_shape"].bool()
         if bool(sh.any()):
             idx = sh.nonzero().squeeze(1)
-            raw = out["shape_raw"][idx]
-            gsize = batch["size"][idx]
-            prims = primitive_params(raw, gsize, min_size_frac, primitive_mode)
-            scale = gsize.norm(dim=1)
-            # GT parts (canonical frame): centre, size, rotation, validity mask
-            parts = (batch["parts_center"][idx], batch["parts_size"][idx], batch["parts_rotation"][idx],
-                     batch["parts_mask"][idx].bool())
-            cov = coverage_loss(batch["surface"][idx], prims, l_nearest, scale)
-            con = consistency_loss(prims, *parts, per_face=consistency_per_face, scale=scale)
-            losses["coverage"] = w.coverage * cov.mean()
-            losses["consistency"] = w.consistency * con.mean()
-            if w.part > 0:
-                losses["part"] = w.part * matched_part_loss(prims, *parts, scale=scale).mean()
-            if w.volume > 0:
-                losses["volume"] = w.volume * volume_consistency_loss(prims, *parts, scale=scale).mean()
-            if w.occupancy > 0:
-                losses["occupancy"] = w.occupancy * occupancy_iou_loss(prims, *parts, gsize).mean()
+            frames = ("gt_box", "predicted_box") if shape_frame == "both" else (shape_frame,)
+            for frame in frames:
+                terms = _shape_terms(out, batch, idx, frame, w, l_nearest, consistency_per_face, min_size_frac,
+                                     primitive_mode)
+                for k, v in terms.items():
+                    losses[k] = losses.get(k, 0.0) + v / len(frames)
 
     if "cls" in tasks:
         cl = batch["cls_label"].long()

@@ -19,6 +19,8 @@ Pipeline for a batch of frustums (points in the frustum frame ``F``, see
    (c) classification head over [segmentation global feature, box feature] (no class
    one-hot input), ``num_classes + 1`` logits, background last; a temperature buffer
    ``cls_temperature`` (set by calibration after training) scales them at inference.
+   With ``shape_anchors`` the shape head's raw output is a residual added to a per-class
+   anchor row (:mod:`.shape_anchors`): the given class's, else the class head's argmax.
 
 The class one-hot may be all zeros (class-agnostic proposals); training drops it at random.
 """
@@ -65,6 +67,9 @@ class FrustumShapeNet(nn.Module):
             self.shape_mlp = SharedMLP(3, cfg.shape_widths, bn)
             shape_in += int(cfg.shape_widths[-1])
         self.shape_head = FCHead(shape_in, cfg.shape_fc, cfg.num_primitives * 10, bn)
+        # per-class anchors of the raw primitive values (zeros until initialised from class
+        # templates, see .shape_anchors); None without ``shape_anchors``
+        self.shape_anchor = nn.Parameter(torch.zeros(nc, cfg.num_primitives * 10)) if cfg.shape_anchors else None
         self.cls_head = FCHead(global_c + feat_c, cfg.cls_fc, cfg.num_cls_outputs, bn, dropout=cfg.cls_dropout)
         self.register_buffer("cls_temperature", torch.tensor(1.0))
         self.register_buffer("mean_sizes", torch.tensor(cfg.mean_sizes, dtype=torch.float32))
@@ -199,6 +204,13 @@ class FrustumShapeNet(nn.Module):
             q = torch.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], d[..., 2]], -1)
             q = q / ss.clamp_min(0.02).unsqueeze(1)
             shape_in = torch.cat([fo, self.shape_mlp.forward_max(q)], 1)
+        cls_logits = self.cls_head(torch.cat([seg_glob, feat], 1))
+        shape_raw = self.shape_head(shape_in)
+        if self.shape_anchor is not None:
+            # the given class's anchors, else those of the classification head's best class
+            with torch.no_grad():
+                anchor_cls = torch.where(given, one_hot.argmax(1), cls_logits[:, : cfg.num_classes].argmax(1))
+            shape_raw = shape_raw + self.shape_anchor[anchor_cls]
         out: dict[str, torch.Tensor] = {
             "seg_logits": seg_logits,
             "seg_glob": seg_glob,
@@ -210,8 +222,8 @@ class FrustumShapeNet(nn.Module):
             "box_heading": heading,
             "box_size": size,
             "box_cluster": cluster,
-            "shape_raw": self.shape_head(shape_in).view(-1, cfg.num_primitives, 10),
-            "cls_logits": self.cls_head(torch.cat([seg_glob, feat], 1)),
+            "shape_raw": shape_raw.view(-1, cfg.num_primitives, 10),
+            "cls_logits": cls_logits,
         }
         out.update(heads)
         return out

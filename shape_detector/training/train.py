@@ -67,6 +67,9 @@ class TrainConfig:
     # noise on the GT box that canonicalises the shape branch's input while training:
     # centre (fraction of the size), heading (rad), size (fraction)
     shape_box_noise: list = field(default_factory=lambda: [0.05, 0.15, 0.08])
+    # frame of the shape losses (model.losses.SHAPE_FRAMES): "gt_box", or "predicted_box" (the
+    # network's own box, as at inference; the shape branch's input then uses it too, no noise)
+    shape_frame: str = "gt_box"
     mirror_prob: float = 0.5
     scale_min: float = 0.9
     scale_max: float = 1.1
@@ -316,7 +319,7 @@ def evaluate(
         b = data.batch(idx, cfg, augment=False, one_hot_mode="given")
         out = model(b["points"], b["one_hot"], random_gather=False)
         L = compute_losses(out, b, ms, tasks, LossWeights.from_dict(cfg.loss_weights), 1, cfg.consistency_per_face,
-                           mcfg.primitive_min_size_frac, mcfg.primitive_param)
+                           mcfg.primitive_min_size_frac, mcfg.primitive_param, cfg.shape_frame)
         for k, v in L.items():
             if not k.startswith("stat_"):
                 loss_sums[k] = loss_sums.get(k, 0.0) + float(v)
@@ -540,27 +543,55 @@ def _fmt_eta(sec: float) -> str:
 _SHAPE_MAPPING_KEYS = ("primitive_param", "primitive_min_size_frac")
 
 
-def _load_init(model: FrustumShapeNet, init_model: FrustumShapeNet, reinit: list[str] | None) -> None:
+def _load_init(model: FrustumShapeNet, init_model: FrustumShapeNet, reinit: list[str] | None) -> bool:
     """Copy ``init_model``'s parameters into ``model`` except those under the ``reinit``
     module-name prefixes, which keep their fresh initialisation. The model configs must be
-    equal, except the primitive mapping when the shape head is re-initialised."""
+    equal, except the primitive mapping when the shape head is re-initialised or gets its
+    first class anchors (``model`` has ``shape_anchors``, ``init_model`` not). Returns
+    whether the class anchors came from ``init_model``."""
     prefixes = tuple(reinit or ())
     a, b = model.config.to_dict(), init_model.config.to_dict()
-    if any("shape_head".startswith(p) for p in prefixes):
+    new_anchors = model.shape_anchor is not None and init_model.shape_anchor is None
+    if new_anchors or any("shape_head".startswith(p) for p in prefixes):
         for k in _SHAPE_MAPPING_KEYS:
             a.pop(k), b.pop(k)
+    if new_anchors:
+        a.pop("shape_anchors"), b.pop("shape_anchors")
     if a != b:
         raise ValueError("--init: its model config differs from the training config's")
 
     def fresh(key: str) -> bool:
-        return bool(prefixes) and key.startswith(prefixes)
+        return (bool(prefixes) and key.startswith(prefixes)) or (new_anchors and key == "shape_anchor")
 
     state = {k: v for k, v in init_model.state_dict().items() if not fresh(k)}
     missing, unexpected = model.load_state_dict(state, strict=False)
     if unexpected or not all(fresh(k) for k in missing):
         raise ValueError(f"--init: parameters do not match (missing {missing}, unexpected {unexpected})")
-    if prefixes and not missing:
+    if prefixes and not any(k.startswith(prefixes) for k in missing):
         raise ValueError(f"reinit={list(prefixes)}: no parameter matches")
+    return model.shape_anchor is not None and not new_anchors and not any("shape_anchor".startswith(p) for p in prefixes)
+
+
+@torch.no_grad()
+def init_shape_anchors(model: FrustumShapeNet, ds: dict[str, np.ndarray], seed: int = 0) -> np.ndarray:
+    """Set ``model.shape_anchor`` to the class templates of ``ds``'s GT parts
+    (:func:`shape_detector.model.shape_anchors.class_templates`) and zero the shape head's
+    output layer, so every object starts at its class template. Returns the per-class
+    bool of classes found (the others keep zero anchors)."""
+    from ..model.shape_anchors import class_templates, templates_to_raw
+
+    cfg = model.config
+    lo, hi, found = class_templates(
+        ds["parts_center"], ds["parts_size"], ds["parts_rotation"],
+        np.where(ds["has_shape"] & ~ds["is_negative"], ds["parts_count"], 0), ds["size"], ds["class_id"],
+        cfg.num_classes, cfg.num_primitives, seed=seed,
+    )
+    raw = templates_to_raw(lo, hi, **cfg.primitive_kwargs()).reshape(cfg.num_classes, -1)
+    raw[~found] = 0.0
+    model.shape_anchor.copy_(torch.as_tensor(raw, dtype=model.shape_anchor.dtype))
+    model.shape_head.out.weight.zero_()
+    model.shape_head.out.bias.zero_()
+    return found
 
 
 def _freeze(model: torch.nn.Module, trainable: list[str] | None) -> list[torch.nn.Module]:
@@ -610,10 +641,14 @@ def train(
     np.random.seed(seed % (2**32))
     model = FrustumShapeNet(mcfg).to(device)
     ck_path = out_dir / "checkpoint.pt"
+    anchors_ready = resume and ck_path.is_file()
     if init_weights is not None and not (resume and ck_path.is_file()):
         init_model, _ = load_weights(init_weights, device)
-        _load_init(model, init_model, cfg.reinit)
+        anchors_ready = _load_init(model, init_model, cfg.reinit)
         print_fn(f"initialised from {init_weights}" + (f" except {cfg.reinit} (fresh)" if cfg.reinit else ""))
+    if model.shape_anchor is not None and not anchors_ready:
+        found = init_shape_anchors(model, train_ds, seed)
+        print_fn(f"shape anchors: class templates of {int(found.sum())} classes; shape head output re-initialised")
     frozen = _freeze(model, cfg.trainable)
     if frozen:
         print_fn(f"training only {cfg.trainable}: {len(frozen)} modules frozen")
@@ -680,10 +715,11 @@ def train(
             l_near = _l_at(cfg, step / max(1, total_steps))
             idx = perm[it * bs : (it + 1) * bs]
             b = tdata.batch(idx, cfg, augment=True, generator=gen, one_hot_mode="train")
-            sbox = shape_box_from_gt(b, cfg.shape_box_noise, gen) if "shape" in tasks else None
+            gt_frame = "shape" in tasks and cfg.shape_frame == "gt_box"
+            sbox = shape_box_from_gt(b, cfg.shape_box_noise, gen) if gt_frame else None
             out = model(b["points"], b["one_hot"], shape_box=sbox)
             L = compute_losses(out, b, model.mean_sizes, tasks, weights, l_near, cfg.consistency_per_face,
-                               mcfg.primitive_min_size_frac, mcfg.primitive_param)
+                               mcfg.primitive_min_size_frac, mcfg.primitive_param, cfg.shape_frame)
             opt.zero_grad(set_to_none=True)
             L["total"].backward()
             if cfg.grad_clip > 0:
