@@ -67,8 +67,9 @@ class TrainConfig:
     # noise on the GT box that canonicalises the shape branch's input while training:
     # centre (fraction of the size), heading (rad), size (fraction)
     shape_box_noise: list = field(default_factory=lambda: [0.05, 0.15, 0.08])
-    # frame of the shape losses (model.losses.SHAPE_FRAMES): "gt_box", or "predicted_box" (the
-    # network's own box, as at inference; the shape branch's input then uses it too, no noise)
+    # frame of the shape losses (model.losses.SHAPE_FRAMES): "gt_box", "predicted_box" (the
+    # network's own box, as at inference) or "both" (their mean); with either of the last two the
+    # shape branch's input is canonicalised by the network's own box too (no GT-box noise)
     shape_frame: str = "gt_box"
     mirror_prob: float = 0.5
     scale_min: float = 0.9
