@@ -27,6 +27,7 @@ import math
 
 import numpy as np
 
+from ..evaluation.shape_metrics import voxel_centers
 from .primitives import PRIMITIVE_PARAMS
 
 #: a template part's box-relative size and centre are clipped to keep the raw values finite
@@ -47,9 +48,8 @@ def relative_parts(
     return (c - half) / s, (c + half) / s
 
 
-def _grid(resolution: int) -> np.ndarray:
-    ax = (np.arange(resolution) + 0.5) / resolution - 0.5
-    return np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1).reshape(-1, 3)
+#: the box-relative unit cube
+_UNIT_CUBE = np.array([[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]])
 
 
 def _occupancy(lo: np.ndarray, hi: np.ndarray, grid: np.ndarray) -> np.ndarray:
@@ -66,7 +66,7 @@ def medoid_template(
     mean voxel IoU to the objects. ``objects``: box-relative part bounds per object."""
     if not objects:
         raise ValueError("medoid_template needs at least one object")
-    grid = _grid(resolution)
+    grid = voxel_centers(_UNIT_CUBE, resolution)
     occ = np.stack([_occupancy(lo, hi, grid) for lo, hi in objects]).astype(np.float32)
     inter = occ @ occ.T
     vol = occ.sum(1)
