@@ -208,8 +208,7 @@ class FrustumShapeNet(nn.Module):
         shape_raw = self.shape_head(shape_in)
         if self.shape_anchor is not None:
             # the given class's anchors, else those of the classification head's best class
-            with torch.no_grad():
-                anchor_cls = torch.where(given, one_hot.argmax(1), cls_logits[:, : cfg.num_classes].argmax(1))
+            anchor_cls = torch.where(given, one_hot.argmax(1), cls_logits[:, : cfg.num_classes].argmax(1))
             shape_raw = shape_raw + self.shape_anchor[anchor_cls]
         out: dict[str, torch.Tensor] = {
             "seg_logits": seg_logits,

@@ -82,6 +82,30 @@ def primitive_params(
     return {"center": trans, "size": size, "rotation": rot}
 
 
+def primitive_raw(
+    center: np.ndarray, size: np.ndarray, min_frac: float = 0.01, mode: str = "exp_linear", eps: float = 1e-3
+) -> np.ndarray:
+    """The inverse of :func:`primitive_params` for box-aligned cuboids: raw values (..., 10)
+    for box-relative centres ``center`` and sizes ``size`` (..., 3) (fractions of the box
+    size; the box is ``[-0.5, 0.5]^3``), identity rotation. Sizes are clipped to
+    ``[min_frac + eps, 1]`` and centres to ``+-(0.5 - eps)`` so the raw values stay finite."""
+    if mode not in PRIMITIVE_PARAMS:
+        raise ValueError(f"unknown primitive parametrisation {mode!r}")
+    size = np.clip(np.asarray(size, np.float64), min_frac + eps, 1.0)
+    center = np.clip(np.asarray(center, np.float64), -0.5 + eps, 0.5 - eps)
+    raw = np.zeros(size.shape[:-1] + (10,))
+    if mode == "exp_linear":  # size = s (f + exp(a')), a' = log 1.25 - softplus(log 1.25 - a): invert both
+        a_soft = np.log(np.clip(size - min_frac, eps, 1.25 - eps))
+        raw[..., 0:3] = _LOG_MAX_SIZE - np.log(np.expm1(_LOG_MAX_SIZE - a_soft))
+        raw[..., 7:10] = 2.0 * center
+    else:
+        q = np.clip((size - min_frac) / (1.0 - min_frac), eps, 1.0 - eps)
+        raw[..., 0:3] = np.log(q / (1.0 - q))
+        raw[..., 7:10] = np.arctanh(2.0 * center)
+    raw[..., 3] = 1.0  # quaternion (1, 0, 0, 0)
+    return raw
+
+
 # ------------------------------------------------------------------------- distances
 
 

@@ -23,15 +23,11 @@ A class template starts every slot on a real part (a leg, a shelf, a side panel)
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from ..evaluation.shape_metrics import voxel_centers
-from .primitives import PRIMITIVE_PARAMS
-
-#: a template part's box-relative size and centre are clipped to keep the raw values finite
-_EPS = 1e-3
+from ..evaluation.shape_metrics import points_in_union, voxel_centers
+from ..types import Cuboid
+from .primitives import primitive_raw
 
 
 def relative_parts(
@@ -53,10 +49,7 @@ _UNIT_CUBE = np.array([[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]])
 
 
 def _occupancy(lo: np.ndarray, hi: np.ndarray, grid: np.ndarray) -> np.ndarray:
-    occ = np.zeros(len(grid), bool)
-    for a, b in zip(lo, hi):
-        occ |= np.all((grid >= a) & (grid <= b), axis=1)
-    return occ
+    return points_in_union(grid, [Cuboid(0.5 * (a + b), b - a, np.eye(3)) for a, b in zip(lo, hi)])
 
 
 def medoid_template(
@@ -130,21 +123,5 @@ def templates_to_raw(lo: np.ndarray, hi: np.ndarray, min_frac: float = 0.01, mod
     """Raw shape-head values (..., M, 10) whose cuboids (:func:`.primitives.primitive_params`
     with a box of any size) are the box-relative bounds ``lo``, ``hi`` (..., M, 3):
     identity rotation, centre ``(lo + hi) / 2``, size ``hi - lo`` (times the box size)."""
-    if mode not in PRIMITIVE_PARAMS:
-        raise ValueError(f"unknown primitive parametrisation {mode!r}")
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    size = np.clip(hi - lo, min_frac + _EPS, 1.0)
-    center = np.clip(0.5 * (lo + hi), -0.5 + _EPS, 0.5 - _EPS)
-    raw = np.zeros(size.shape[:-1] + (10,))
-    if mode == "exp_linear":
-        # size = s * (f + exp(a')) with a' = log1.25 - softplus(log1.25 - a): invert both
-        a_soft = np.log(np.clip(size - min_frac, _EPS, 1.25 - _EPS))
-        cap = math.log(1.25)
-        raw[..., 0:3] = cap - np.log(np.expm1(cap - a_soft))
-        raw[..., 7:10] = 2.0 * center
-    else:
-        p = np.clip((size - min_frac) / (1.0 - min_frac), _EPS, 1.0 - _EPS)
-        raw[..., 0:3] = np.log(p / (1.0 - p))
-        raw[..., 7:10] = np.arctanh(2.0 * center)
-    raw[..., 3] = 1.0  # quaternion (1, 0, 0, 0)
-    return raw
+    return primitive_raw(0.5 * (lo + hi), hi - lo, min_frac, mode)

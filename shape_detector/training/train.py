@@ -570,7 +570,7 @@ def _load_init(model: FrustumShapeNet, init_model: FrustumShapeNet, reinit: list
         raise ValueError(f"--init: parameters do not match (missing {missing}, unexpected {unexpected})")
     if prefixes and not any(k.startswith(prefixes) for k in missing):
         raise ValueError(f"reinit={list(prefixes)}: no parameter matches")
-    return model.shape_anchor is not None and not new_anchors and not any("shape_anchor".startswith(p) for p in prefixes)
+    return "shape_anchor" in state
 
 
 @torch.no_grad()
