@@ -277,3 +277,39 @@ def test_shape_anchors_start_at_the_class_templates_and_carry_over(ds, tmp_path)
     assert not any("shape anchors" in s for s in logs)
     c_model, _ = load_weights(tmp_path / "c" / "weights.pt")
     assert torch.equal(c_model.shape_anchor, b.shape_anchor)
+
+
+def test_box_context_branch_starts_as_the_init_model_and_then_learns(ds, tmp_path):
+    """A model with the frustum-context branch, initialised from one without: before any step
+    it computes exactly what the init model did (the new inputs of the box head start at zero);
+    a box fine-tune of ctx_mlp + box_head then changes only those."""
+    from shape_detector.model.network import FrustumShapeNet
+    from shape_detector.training.train import _load_init
+
+    tr, va = fds.split_by_frame(ds, 0.34, seed=0)
+    train(_cfg(epochs=1), tr, va, tmp_path / "a", seed=3, print_fn=lambda s: None)
+    a, _ = load_weights(tmp_path / "a" / "weights.pt")
+    ctx_model = dict(SMALL, box_context_widths=[16, 32])
+    b = FrustumShapeNet(_cfg(model=ctx_model).model_config())
+    _load_init(b, a, None)
+    a.eval(), b.eval()
+    batch = TensorData(va, torch.device("cpu"), a.config.num_classes).batch(torch.arange(6), one_hot_mode="given")
+    with torch.no_grad():
+        oa, ob = a(batch["points"], batch["one_hot"]), b(batch["points"], batch["one_hot"])
+    for k in ("center", "box_size", "box_heading", "cls_logits", "shape_raw", "seg_logits"):
+        assert torch.equal(oa[k], ob[k]), k
+    train(_cfg(epochs=1, tasks="box", model=ctx_model, trainable=["ctx_mlp", "box_head"], lr=0.01), tr, va,
+          tmp_path / "b", seed=4, print_fn=lambda s: None, init_weights=tmp_path / "a" / "weights.pt")
+    c, meta = load_weights(tmp_path / "b" / "weights.pt")
+    assert c.config.box_context_widths == (16, 32)
+    # a box-only fine-tune keeps the init's trained class head, and says so (the predictor scores
+    # by class probability and runs the class-given second pass only for weights with one)
+    assert set(meta["tasks"]) == {"box", "shape", "cls"}
+    sa, sc = a.state_dict(), c.state_dict()
+    changed = {k for k in sa if not torch.equal(sa[k], sc[k])}
+    # only the box head moved; without the class task the class temperature is kept, not reset
+    assert changed and all(k.startswith("box_head") for k in changed), changed
+    assert any(not torch.all(v == 0) for k, v in sc.items() if k.startswith("ctx_mlp.") and k.endswith("weight"))
+    with pytest.raises(ValueError, match="model config"):  # the branch may be added, not removed
+        train(_cfg(epochs=1, model=SMALL), tr, va, tmp_path / "c", seed=4, print_fn=lambda s: None,
+              init_weights=tmp_path / "b" / "weights.pt")

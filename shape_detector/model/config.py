@@ -46,6 +46,10 @@ class ModelConfig:
     * ``shape_anchors``: the shape head's raw output is added to a learnt per-class anchor
       row (``FrustumShapeNet.shape_anchor``, started from class templates of the GT parts,
       see :mod:`.shape_anchors`); the given class's, else the class head's argmax.
+    * ``box_context_widths``: non-empty adds a PointNet (``ctx_mlp``) over *all* frustum
+      points (xyz relative to the stage-1 centre, frame F, metres, plus the hard foreground
+      mask as a 4th channel) whose max-pooled feature joins the box head's input: the floor
+      and walls seen around the object bound its hidden extent. Empty (default): off.
     """
 
     num_points: int = 512
@@ -65,6 +69,7 @@ class ModelConfig:
     tnet_fc: tuple[int, ...] = (128, 64)
     box_widths: tuple[int, ...] = (64, 128, 256, 512)
     box_fc: tuple[int, ...] = (256, 128)
+    box_context_widths: tuple[int, ...] = ()
     shape_fc: tuple[int, ...] = (256, 128)
     shape_branch: str = "canonical"
     shape_widths: tuple[int, ...] = (64, 128, 256)

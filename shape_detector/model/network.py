@@ -11,7 +11,9 @@ Pipeline for a batch of frustums (points in the frustum frame ``F``, see
 3. **T-Net** regresses a residual centre (stage-1 centre = mask mean + residual);
 4. **box PointNet** on the points relative to the stage-1 centre -> global feature;
    (a) amodal box head: centre residual, ``NH`` heading bins + normalised residuals,
-   ``NS`` size clusters + normalised residuals (see :mod:`.box_coder`);
+   ``NS`` size clusters + normalised residuals (see :mod:`.box_coder`); with
+   ``box_context_widths`` it also gets a context PointNet's feature over every frustum
+   point around the stage-1 centre with the hard mask as a channel (what surrounds the object);
    (b) shape head: ``M`` cuboid primitives in the canonical object frame (see
    :mod:`.primitives`), from the box feature and (``shape_branch="canonical"``) a small
    PointNet over the object points in the canonical frame of a box (``shape_box``: the GT
@@ -60,7 +62,13 @@ class FrustumShapeNet(nn.Module):
         # 4. box PointNet and heads
         self.box_mlp = SharedMLP(3, cfg.box_widths, bn)
         feat_c = int(cfg.box_widths[-1])
-        self.box_head = FCHead(feat_c + nc, cfg.box_fc, box_head_channels(cfg.num_heading_bins, cfg.num_size_clusters), bn)
+        # the whole frustum around the stage-1 centre, with the hard mask as a 4th channel: what
+        # lies around the object (the floor beyond it, a wall behind it) bounds its hidden extent
+        self.ctx_mlp = SharedMLP(4, cfg.box_context_widths, bn) if cfg.box_context_widths else None
+        ctx_c = self.ctx_mlp.out_channels if self.ctx_mlp is not None else 0
+        self.box_head = FCHead(
+            feat_c + nc + ctx_c, cfg.box_fc, box_head_channels(cfg.num_heading_bins, cfg.num_size_clusters), bn
+        )
         shape_in = feat_c + nc
         self.shape_mlp = None
         if cfg.shape_branch == "canonical":
@@ -185,7 +193,11 @@ class FrustumShapeNet(nn.Module):
         local = local - center_delta.unsqueeze(1)
         feat = self.box_mlp.forward_max(local)
         fo = torch.cat([feat, one_hot], 1)
-        heads = split_box_head(self.box_head(fo), cfg.num_heading_bins, cfg.num_size_clusters)
+        box_in = fo
+        if self.ctx_mlp is not None:
+            around = torch.cat([xyz - stage1.unsqueeze(1), fg.unsqueeze(-1).to(xyz.dtype)], -1)
+            box_in = torch.cat([fo, self.ctx_mlp.forward_max(around)], 1)
+        heads = split_box_head(self.box_head(box_in), cfg.num_heading_bins, cfg.num_size_clusters)
         center = stage1 + heads["center_res"]
         with torch.no_grad():
             hcls = heads["heading_scores"].argmax(1)

@@ -36,7 +36,7 @@ from ..evaluation.iou import box3d_iou
 from ..geometry import rot_z
 from ..model.config import ModelConfig
 from ..model.io import load_checkpoint, load_weights, model_from_state, save_checkpoint, save_weights
-from ..model.losses import LossWeights, compute_losses, parse_tasks
+from ..model.losses import ALL_TASKS, LossWeights, compute_losses, parse_tasks
 from ..model.network import FrustumShapeNet
 from ..model.pointnet import set_bn_momentum
 from ..model.primitives import consistency_loss, coverage_loss, primitive_params, shape_iou_mc
@@ -553,18 +553,32 @@ def _load_init(model: FrustumShapeNet, init_model: FrustumShapeNet, reinit: list
     prefixes = tuple(reinit or ())
     a, b = model.config.to_dict(), init_model.config.to_dict()
     new_anchors = model.shape_anchor is not None and init_model.shape_anchor is None
+    new_context = model.ctx_mlp is not None and init_model.ctx_mlp is None
     if new_anchors or any("shape_head".startswith(p) for p in prefixes):
         for k in _SHAPE_MAPPING_KEYS:
             a.pop(k), b.pop(k)
     if new_anchors:
         a.pop("shape_anchors"), b.pop("shape_anchors")
+    if new_context:
+        a.pop("box_context_widths"), b.pop("box_context_widths")
     if a != b:
         raise ValueError("--init: its model config differs from the training config's")
 
     def fresh(key: str) -> bool:
-        return (bool(prefixes) and key.startswith(prefixes)) or (new_anchors and key == "shape_anchor")
+        return (
+            (bool(prefixes) and key.startswith(prefixes))
+            or (new_anchors and key == "shape_anchor")
+            or (new_context and key.startswith("ctx_mlp."))
+        )
 
     state = {k: v for k, v in init_model.state_dict().items() if not fresh(k)}
+    if new_context:
+        # the box head's first layer gets zero weights for the new context feature, so the
+        # network starts out computing exactly what ``init_model`` did
+        key = "box_head.body.0.linear.weight"
+        w = torch.zeros_like(model.state_dict()[key])
+        w[:, : state[key].shape[1]] = state[key]
+        state[key] = w
     missing, unexpected = model.load_state_dict(state, strict=False)
     if unexpected or not all(fresh(k) for k in missing):
         raise ValueError(f"--init: parameters do not match (missing {missing}, unexpected {unexpected})")
@@ -677,8 +691,13 @@ def train(
         torch.set_rng_state(ck["torch_rng"])
         gen.set_state(ck["gen_rng"])
         print_fn(f"resumed from {ck_path} at epoch {start_epoch} (step {step})")
+    # the heads the weights carry trained: this run's tasks plus, for a fine-tune, its init's
+    # (a box-only fine-tune of a model with a class head still has that class head)
+    weight_tasks = set(tasks)
+    if init_weights is not None:
+        weight_tasks |= set(load_weights(init_weights, device)[1].get("tasks") or ALL_TASKS)
     meta = {
-        "tasks": sorted(tasks),
+        "tasks": sorted(weight_tasks),
         "seed": seed,
         "train_config": cfg.to_dict(),
         "model_config": mcfg.to_dict(),
@@ -802,7 +821,8 @@ def train(
                 continue
             m, wmeta = load_weights(p, device)
             vm, raw = evaluate(m, vdata, cfg, tasks, cfg.val_max_frustums, seed=seed)
-            cal = calibrate(raw) if "cls" in tasks else {"temperature": 1.0}
+            # without the class task the class head is not trained here: keep its temperature
+            cal = calibrate(raw) if "cls" in tasks else {"temperature": float(m.cls_temperature), "kept": True}
             m.cls_temperature.fill_(float(cal["temperature"]))
             wmeta["calibration"] = cal
             wmeta["val"] = vm
