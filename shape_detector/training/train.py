@@ -657,10 +657,15 @@ def train(
     model = FrustumShapeNet(mcfg).to(device)
     ck_path = out_dir / "checkpoint.pt"
     anchors_ready = resume and ck_path.is_file()
-    if init_weights is not None and not (resume and ck_path.is_file()):
-        init_model, _ = load_weights(init_weights, device)
-        anchors_ready = _load_init(model, init_model, cfg.reinit)
-        print_fn(f"initialised from {init_weights}" + (f" except {cfg.reinit} (fresh)" if cfg.reinit else ""))
+    # the heads the weights carry trained: this run's tasks plus, for a fine-tune, its init's
+    # (a box-only fine-tune of a model with a class head still has that class head)
+    weight_tasks = set(tasks)
+    if init_weights is not None:
+        init_model, init_meta = load_weights(init_weights, device)
+        weight_tasks |= set(init_meta.get("tasks") or ALL_TASKS)
+        if not (resume and ck_path.is_file()):
+            anchors_ready = _load_init(model, init_model, cfg.reinit)
+            print_fn(f"initialised from {init_weights}" + (f" except {cfg.reinit} (fresh)" if cfg.reinit else ""))
     if model.shape_anchor is not None and not anchors_ready:
         found = init_shape_anchors(model, train_ds, seed)
         print_fn(f"shape anchors: class templates of {int(found.sum())} classes; shape head output re-initialised")
@@ -691,11 +696,6 @@ def train(
         torch.set_rng_state(ck["torch_rng"])
         gen.set_state(ck["gen_rng"])
         print_fn(f"resumed from {ck_path} at epoch {start_epoch} (step {step})")
-    # the heads the weights carry trained: this run's tasks plus, for a fine-tune, its init's
-    # (a box-only fine-tune of a model with a class head still has that class head)
-    weight_tasks = set(tasks)
-    if init_weights is not None:
-        weight_tasks |= set(load_weights(init_weights, device)[1].get("tasks") or ALL_TASKS)
     meta = {
         "tasks": sorted(weight_tasks),
         "seed": seed,
