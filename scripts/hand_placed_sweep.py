@@ -16,20 +16,14 @@ import itertools
 import numpy as np
 
 from shape_detector import ShapeDetector
-from shape_detector.geometry import upright_rotation
-from shape_detector.proposals.evaluate import box_part, toy_scene, up_from_pitch_roll
+from shape_detector.proposals.evaluate import placed_box_scene
 
-SIZE = np.array([0.53, 1.00, 1.17])  # l, w, h (m)
-CAM_HEIGHT = 1.3
+SIZE = (0.53, 1.00, 1.17)  # l, w, h (m)
 
 
 def centre_error(det: ShapeDetector, yaw: float, x: float, y: float, walls: tuple) -> float:
     """Centre error (m) of the dresser placed at world (x, y) on the floor with ``yaw`` (rad)."""
-    up = up_from_pitch_roll(12.0)
-    c_world = np.array([x, y, SIZE[2] / 2])
-    frame = toy_scene([("dresser", [box_part(x, y, *SIZE, yaw=yaw)])], up=up, cam_height=CAM_HEIGHT, seed=3,
-                      walls=walls)
-    c_cam = upright_rotation(frame.up) @ (c_world - np.array([0.0, 0.0, CAM_HEIGHT]))
+    frame, c_cam, _ = placed_box_scene("dresser", SIZE, x, y, yaw, walls=walls)
     objs = det.detect(frame.rgb, frame.depth, frame.K, boxes2d=[(*frame.objects[0].box2d, "dresser")], up=frame.up)
     return float(np.linalg.norm(objs[0].center - c_cam)) if objs else float("inf")
 

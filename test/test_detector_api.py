@@ -7,8 +7,8 @@ import pytest
 
 from shape_detector import ShapeDetector
 from shape_detector.evaluation.iou import box3d_iou
-from shape_detector.geometry import rot_z, rotation_to_heading, upright_rotation
-from shape_detector.proposals.evaluate import box_part, toy_scene, up_from_pitch_roll
+from shape_detector.geometry import rotation_to_heading
+from shape_detector.proposals.evaluate import placed_box_scene
 
 CAM_HEIGHT = 1.3
 
@@ -20,15 +20,9 @@ def detector() -> ShapeDetector:
 
 def _dresser_scene(yaw: float = 0.35, pitch_deg: float = 12.0):
     """A 0.53 x 1.00 x 1.17 m box standing on the floor 2.6 m ahead, seen by a pitched camera."""
-    up = up_from_pitch_roll(pitch_deg)  # camera pitched down
     size = np.array([0.53, 1.00, 1.17])
-    centre_w = np.array([0.25, 2.6, size[2] / 2])
-    frame = toy_scene(
-        [("dresser", [box_part(centre_w[0], centre_w[1], *size, yaw=yaw)])], up=up, cam_height=CAM_HEIGHT, seed=3
-    )
-    R_cu = upright_rotation(frame.up)
-    centre_cam = R_cu @ (centre_w - np.array([0.0, 0.0, CAM_HEIGHT]))
-    return frame, centre_cam, size, R_cu @ rot_z(yaw)
+    frame, centre, rotation = placed_box_scene("dresser", size, 0.25, 2.6, yaw, pitch_deg, CAM_HEIGHT)
+    return frame, centre, size, rotation
 
 
 def _check_object_contract(obj, up: np.ndarray) -> None:

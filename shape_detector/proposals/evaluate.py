@@ -170,6 +170,29 @@ def box_part(x: float, y: float, l: float, w: float, h: float, yaw: float = 0.0,
     return ToyPart((x, y, z0 + 0.5 * h), (l, w, h), yaw)
 
 
+def placed_box_scene(
+    name: str,
+    size: Sequence[float],
+    x: float,
+    y: float,
+    yaw: float = 0.0,
+    pitch_deg: float = 12.0,
+    cam_height: float = 1.3,
+    walls: Sequence[tuple[float, float]] = (),
+    seed: int = 3,
+) -> tuple[Frame, np.ndarray, np.ndarray]:
+    """One box of class ``name`` and full extent ``size`` (l, w, h metres) placed by hand on the
+    floor at world (x, y) with ``yaw`` (rad), seen by a camera ``cam_height`` m high pitched
+    ``pitch_deg`` down (see :func:`toy_scene`). Returns the frame and the box's centre (3,) and
+    rotation (3x3, columns = box axes) in the camera optical frame."""
+    size = np.asarray(size, dtype=np.float64)
+    frame = toy_scene([(name, [box_part(x, y, *size, yaw=yaw)])], up=up_from_pitch_roll(pitch_deg),
+                      cam_height=cam_height, walls=walls, seed=seed)
+    R_cu = upright_rotation(frame.up)
+    centre = R_cu @ (np.array([x, y, size[2] / 2]) - np.array([0.0, 0.0, cam_height]))
+    return frame, centre, R_cu @ rot_z(yaw)
+
+
 def chair_parts(x: float, y: float, yaw: float = 0.0, seat_h: float = 0.45, leg: float = 0.04) -> list[ToyPart]:
     """A chair: 4 thin legs, a seat slab and a back rest, facing -y before ``yaw``."""
     R = rot_z(yaw)[:2, :2]

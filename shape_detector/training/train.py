@@ -573,9 +573,10 @@ def _load_init(model: FrustumShapeNet, init_model: FrustumShapeNet, reinit: list
 
     state = {k: v for k, v in init_model.state_dict().items() if not fresh(k)}
     if new_context:
-        # the box head's first layer gets zero weights for the new context feature, so the
-        # network starts out computing exactly what ``init_model`` did
-        key = "box_head.body.0.linear.weight"
+        # the box head's first layer (its first weight matrix: body.0, or out without a body)
+        # gets zero weights for the new context feature, so the network starts out computing
+        # exactly what ``init_model`` did
+        key = next(k for k, v in state.items() if k.startswith("box_head.") and v.dim() == 2)
         w = torch.zeros_like(model.state_dict()[key])
         w[:, : state[key].shape[1]] = state[key]
         state[key] = w
@@ -656,14 +657,15 @@ def train(
     np.random.seed(seed % (2**32))
     model = FrustumShapeNet(mcfg).to(device)
     ck_path = out_dir / "checkpoint.pt"
-    anchors_ready = resume and ck_path.is_file()
+    resuming = resume and ck_path.is_file()
+    anchors_ready = resuming
     # the heads the weights carry trained: this run's tasks plus, for a fine-tune, its init's
     # (a box-only fine-tune of a model with a class head still has that class head)
     weight_tasks = set(tasks)
     if init_weights is not None:
         init_model, init_meta = load_weights(init_weights, device)
         weight_tasks |= set(init_meta.get("tasks") or ALL_TASKS)
-        if not (resume and ck_path.is_file()):
+        if not resuming:
             anchors_ready = _load_init(model, init_model, cfg.reinit)
             print_fn(f"initialised from {init_weights}" + (f" except {cfg.reinit} (fresh)" if cfg.reinit else ""))
     if model.shape_anchor is not None and not anchors_ready:
@@ -682,7 +684,7 @@ def train(
     best, elapsed_before = -float("inf"), 0.0
     gen = torch.Generator()
     gen.manual_seed(seed)
-    if resume and ck_path.is_file():
+    if resuming:
         ck = load_checkpoint(ck_path)
         model.load_state_dict(model_from_state(ck, device).state_dict())
         opt.load_state_dict(ck["optimizer"])
