@@ -60,7 +60,9 @@ $(DATA)/test/index.json: | $(STAMP)
 # data again at a lower learning rate (runs/ft3); the shape branch alone with the soft
 # volumetric IoU term added (runs/shape4; everything else frozen); the shape branch again with
 # per-class primitive anchors, in the GT box's and its own box's frame (runs/anchors); the box head
-# with the frustum-context PointNet added, on stage 3's data (runs/boxctx; all else frozen); then the proposal classifier
+# with the frustum-context PointNet added, on stage 3's data (runs/boxctx; all else frozen); the second box
+# stage (a PointNet over the frustum in the first box's own frame) added and trained alone on the same data
+# (runs/box2); then the proposal classifier
 # on the shipped network's built-in-proposal candidates of the training frames and 3000 more
 # (seed 6; runs/cls).
 weights: $(DATA)/train/index.json $(DATA)/val/index.json $(DATA)/extra/index.json
@@ -70,7 +72,8 @@ weights: $(DATA)/train/index.json $(DATA)/val/index.json $(DATA)/extra/index.jso
 	$(SD) train --config shape_detector/training/configs/shape_finetune.json --data runs/main/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/ft3/best.pt --out runs/shape4 --seed 3 --device cpu --threads 1
 	$(SD) train --config shape_detector/training/configs/shape_anchors.json --data runs/main/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/shape4/best.pt --out runs/anchors --seed 3 --device cpu --threads 1
 	$(SD) train --config shape_detector/training/configs/box_context.json --data runs/main/frustums_train_*.npz runs/ft/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/anchors/best.pt --out runs/boxctx --seed 4 --device cpu --threads 2
-	cp runs/boxctx/best.pt shape_detector/weights/default.pt
+	$(SD) train --config shape_detector/training/configs/box_stage2.json --data runs/main/frustums_train_*.npz runs/ft/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/boxctx/best.pt --out runs/box2 --seed 5 --device cpu --threads 2
+	cp runs/box2/best.pt shape_detector/weights/default.pt
 	$(SD) train-classifier --data $(DATA)/train $(DATA)/extra --weights shape_detector/weights/default.pt --out runs/cls --seed 0 --workers 2 --threads 2
 	cp runs/cls/classifier.pt shape_detector/weights/classifier.pt
 

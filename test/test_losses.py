@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -136,3 +138,72 @@ def test_predicted_box_shape_frame_matches_gt_frame_for_a_perfect_box_and_sees_b
         assert float(both[k]) == pytest.approx(0.5 * (float(gt_tall[k]) + float(L[k])), rel=0.05), k
     with pytest.raises(ValueError, match="shape_frame"):
         compute_losses(out, b, net.mean_sizes, "shape", shape_frame="camera")
+
+
+def test_aligned_gt_box_picks_the_quarter_turn_nearest_the_prediction():
+    """The GT box (l=2, w=1, heading 0) seen from predictions at 10, 80, 170 and -100 degrees:
+    the same solid re-parametrised with its heading within 45 degrees of each prediction,
+    length and width swapped after an odd number of quarter turns."""
+    from shape_detector.model.losses import aligned_gt_box
+
+    pred = torch.deg2rad(torch.tensor([10.0, 80.0, 170.0, -100.0]))
+    gs = torch.tensor([[2.0, 1.0, 0.5]]).repeat(4, 1)
+    size, h = aligned_gt_box(pred, gs, torch.zeros(4))
+    np.testing.assert_allclose(torch.rad2deg(h).numpy(), [0.0, 90.0, 180.0, -90.0], atol=1e-4)
+    np.testing.assert_allclose(size.numpy(), [[2, 1, 0.5], [1, 2, 0.5], [2, 1, 0.5], [1, 2, 0.5]])
+
+
+def test_second_box_stage_moves_the_box_in_its_own_axes_and_trains_alone():
+    """``second_box_stage``'s residuals are in the first box's axes and sizes: a residual of +0.1 box
+    lengths along x of a box heading 90 degrees moves the centre +y by 0.1 * l; log size +0.2
+    scales every side by e^0.2; the heading residual adds. Its loss terms reach only the second
+    stage's parameters, and a few steps on a fixed batch lower them."""
+    torch.manual_seed(0)
+    net = FrustumShapeNet(ModelConfig(**SMALL, box2_widths=(16, 32), box2_fc=(32,)))
+    net.eval()
+    B, N = 2, 64
+    xyz = torch.randn(B, N, 3)
+    fg = torch.rand(B, N) > 0.5
+    feat = torch.randn(B, net.box_mlp.out_channels)
+    oh = torch.zeros(B, 10)
+    c0 = torch.tensor([[0.0, 0.0, 3.0], [1.0, 0.5, 2.0]])
+    h0 = torch.tensor([math.pi / 2, 0.0])
+    s0 = torch.tensor([[2.0, 1.0, 0.5], [1.0, 1.0, 1.0]])
+    c, h, s, r = net.second_box_stage(xyz, fg, feat, oh, c0, h0, s0)
+    assert torch.equal(c, c0) and torch.equal(h, h0) and torch.equal(s, s0) and not r.any()  # zero output layer
+    with torch.no_grad():
+        net.box2_head.out.bias.copy_(torch.tensor([0.1, 0.0, 0.0, 0.2, 0.2, 0.2, 0.05]))
+        c, h, s, _ = net.second_box_stage(xyz, fg, feat, oh, c0, h0, s0)
+    np.testing.assert_allclose(c.numpy(), [[0.0, 0.2, 3.0], [1.1, 0.5, 2.0]], atol=1e-6)
+    np.testing.assert_allclose(s.numpy(), (s0 * math.exp(0.2)).numpy(), rtol=1e-6)
+    np.testing.assert_allclose(h.numpy(), (h0 + 0.05).numpy(), atol=1e-6)
+
+    ds = _data(2, neg=1)
+    data = TensorData(ds, torch.device("cpu"), 10)
+    b = data.batch(torch.arange(data.n), TrainConfig(), augment=False, one_hot_mode="given")
+    net = FrustumShapeNet(ModelConfig(**SMALL, box2_widths=(16, 32), box2_fc=(32,)))
+    net.eval()  # batch statistics fixed, so the losses of successive steps compare
+    out = net(b["points"], b["one_hot"])
+    L = compute_losses(out, b, net.mean_sizes, "box")
+    keys = ("box2_corner", "box2_center", "box2_size", "box2_heading")
+    assert set(keys) <= set(L)
+    refine = sum(L[k] for k in keys)
+    refine.backward()
+    for name, p in net.named_parameters():
+        moved = p.grad is not None and bool(p.grad.abs().sum() > 0)
+        if not name.startswith(("box2_mlp.", "box2_head.")):
+            assert not moved, name
+    assert net.box2_head.out.weight.grad.abs().sum() > 0
+    params = [p for n, p in net.named_parameters() if n.startswith(("box2_mlp.", "box2_head."))]
+    opt = torch.optim.Adam(params, lr=3e-3)
+    first = float(refine.detach())
+    for _ in range(40):
+        out = net(b["points"], b["one_hot"])
+        L = compute_losses(out, b, net.mean_sizes, "box")
+        loss = sum(L[k] for k in keys)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert float(loss) < 0.7 * first, (first, float(loss))
+    # the box head's own centre is kept apart from the refined one (its losses use it)
+    assert "center_head" in out and not torch.equal(out["center_head"], out["center"])

@@ -313,3 +313,35 @@ def test_box_context_branch_starts_as_the_init_model_and_then_learns(ds, tmp_pat
     with pytest.raises(ValueError, match="model config"):  # the branch may be added, not removed
         train(_cfg(epochs=1, model=SMALL), tr, va, tmp_path / "c", seed=4, print_fn=lambda s: None,
               init_weights=tmp_path / "b" / "weights.pt")
+
+
+def test_second_box_stage_starts_as_the_init_model_and_trains_alone(ds, tmp_path):
+    """A model with the second box stage, initialised from one without, computes exactly what
+    the init did (its output layer starts at zero); a box fine-tune of box2_mlp +
+    box2_head moves only those, and the refined box is what the weights then predict."""
+    from shape_detector.model.network import FrustumShapeNet
+    from shape_detector.training.train import _load_init
+
+    tr, va = fds.split_by_frame(ds, 0.34, seed=0)
+    train(_cfg(epochs=1), tr, va, tmp_path / "a", seed=3, print_fn=lambda s: None)
+    a, _ = load_weights(tmp_path / "a" / "weights.pt")
+    ref_model = dict(SMALL, box2_widths=[16, 32], box2_fc=[16])
+    b = FrustumShapeNet(_cfg(model=ref_model).model_config())
+    _load_init(b, a, None)
+    a.eval(), b.eval()
+    batch = TensorData(va, torch.device("cpu"), a.config.num_classes).batch(torch.arange(6), one_hot_mode="given")
+    with torch.no_grad():
+        oa, ob = a(batch["points"], batch["one_hot"]), b(batch["points"], batch["one_hot"])
+    for k in ("center", "box_size", "box_heading", "cls_logits", "shape_raw", "seg_logits"):
+        assert torch.equal(oa[k], ob[k]), k
+    train(_cfg(epochs=2, tasks="box", model=ref_model, trainable=["box2_mlp", "box2_head"], lr=0.01), tr, va,
+          tmp_path / "b", seed=4, print_fn=lambda s: None, init_weights=tmp_path / "a" / "weights.pt")
+    c, meta = load_weights(tmp_path / "b" / "weights.pt")
+    assert c.config.box2_widths == (16, 32) and set(meta["tasks"]) == {"box", "shape", "cls"}
+    sa, sc = a.state_dict(), c.state_dict()
+    assert all(torch.equal(sa[k], sc[k]) for k in sa)  # everything of the init is kept as it was
+    c.eval()
+    with torch.no_grad():
+        oc = c(batch["points"], batch["one_hot"])
+    assert torch.equal(oc["center_head"], oa["center"])  # the first box is the init's
+    assert not torch.equal(oc["center"], oa["center"]) and not torch.equal(oc["box_size"], oa["box_size"])

@@ -50,6 +50,12 @@ class ModelConfig:
       points (xyz relative to the stage-1 centre, frame F, metres, plus the hard foreground
       mask as a 4th channel) whose max-pooled feature joins the box head's input: the floor
       and walls seen around the object bound its hidden extent. Empty (default): off.
+    * ``box2_widths``: non-empty adds a second box stage (``box2_mlp`` +
+      ``box2_head``, ``box2_fc``): a PointNet over all frustum points expressed in the
+      first box's canonical frame and divided by its size (the box becomes the unit cube;
+      clamped to +-4), with the hard mask as a 4th channel; from its feature, the box
+      feature, the class one-hot and the first box's log size it regresses a residual centre
+      (box axes, in box sizes), log size and heading. Empty (default): off.
     """
 
     num_points: int = 512
@@ -70,6 +76,8 @@ class ModelConfig:
     box_widths: tuple[int, ...] = (64, 128, 256, 512)
     box_fc: tuple[int, ...] = (256, 128)
     box_context_widths: tuple[int, ...] = ()
+    box2_widths: tuple[int, ...] = ()
+    box2_fc: tuple[int, ...] = (128, 64)
     shape_fc: tuple[int, ...] = (256, 128)
     shape_branch: str = "canonical"
     shape_widths: tuple[int, ...] = (64, 128, 256)

@@ -7,7 +7,9 @@ box errors). Task flags select the groups:
 * always: instance segmentation cross-entropy (all frustums, negatives all background);
 * ``box``: Huber on the stage-1 (T-Net) and final centre, heading-bin and size-cluster
   cross-entropy, Huber on the normalised residuals, corner loss (min over the GT box and
-  its heading-flipped twin) -- positives only;
+  its heading-flipped twin) -- positives only; with a second box stage in the network
+  (``out["box2_res"]``) also its corner, centre, log-size and heading terms
+  (``box2_*``, against the GT box turned by the quarter turn nearest the prediction);
 * ``shape``: coverage (sum of the ``l`` smallest squared distances of GT surface samples to
   the primitives) and consistency (area-weighted squared distance of reparametrised
   primitive-surface samples to the union of GT parts) -- positives with shape GT only;
@@ -61,6 +63,10 @@ class LossWeights:
     volume: float = 30.0
     occupancy: float = 0.0
     cls: float = 1.0
+    box2_corner: float = 10.0
+    box2_center: float = 5.0
+    box2_size: float = 5.0
+    box2_heading: float = 2.0
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> "LossWeights":
@@ -148,6 +154,48 @@ def _shape_terms(
     return terms
 
 
+def aligned_gt_box(
+    heading: torch.Tensor, gt_size: torch.Tensor, gt_heading: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The GT box re-parametrised by the quarter turn (about up) nearest the predicted
+    ``heading`` (B,): the same solid, its heading within 45 degrees of the prediction, with
+    length and width swapped after an odd number of quarter turns. Returns (size (B,3),
+    heading (B,))."""
+    k = torch.round((gt_heading - heading) / (0.5 * math.pi))
+    h = gt_heading - k * (0.5 * math.pi)
+    odd = (k.remainder(2) == 1).unsqueeze(1)
+    size = torch.where(odd, gt_size[:, [1, 0, 2]], gt_size)
+    return size, h
+
+
+def _box2_terms(
+    out: dict[str, torch.Tensor],
+    gt_c: torch.Tensor,
+    gt_s: torch.Tensor,
+    gt_h: torch.Tensor,
+    pos: torch.Tensor,
+    w: "LossWeights",
+) -> dict[str, torch.Tensor]:
+    """Losses of the second box stage (positives): Huber of the refined box's corner
+    distances (mean over corners) to the GT box in the parametrisation nearest its heading
+    (:func:`aligned_gt_box`), Huber of the centre distance, of the log size ratios and of the
+    heading difference to that parametrisation."""
+    c, h, s = out["center"], out["box_heading"], out["box_size"]
+    a_s, a_h = aligned_gt_box(h.detach(), gt_s, gt_h)
+    pc = box_corners_torch(c, s, h)
+    gc = box_corners_torch(gt_c, a_s, a_h)
+    corner = huber((pc - gc).norm(dim=2), 1.0).mean(1)
+    center = huber((c - gt_c).norm(dim=1), 1.0)
+    size = huber(torch.log(s / a_s.clamp_min(1e-3)), 1.0).sum(1)
+    heading = huber(h - a_h, 1.0)
+    return {
+        "box2_corner": w.box2_corner * _masked_mean(corner, pos),
+        "box2_center": w.box2_center * _masked_mean(center, pos),
+        "box2_size": w.box2_size * _masked_mean(size, pos),
+        "box2_heading": w.box2_heading * _masked_mean(heading, pos),
+    }
+
+
 def compute_losses(
     out: dict[str, torch.Tensor],
     batch: dict[str, torch.Tensor],
@@ -189,7 +237,8 @@ def compute_losses(
         gt_c, gt_s, gt_h = batch["center"], batch["size"], batch["heading"]
         scl = batch["size_cluster"].long().clamp_min(0)
         d1 = (out["stage1_center"] - gt_c).norm(dim=1)
-        d2 = (out["center"] - gt_c).norm(dim=1)
+        head_c = out.get("center_head", out["center"])
+        d2 = (head_c - gt_c).norm(dim=1)
         losses["stage1_center"] = w.stage1_center * _masked_mean(huber(d1, 1.0), pos)
         losses["center"] = w.center * _masked_mean(huber(d2, 2.0), pos)
         hcls, hres = encode_heading(gt_h, nh)
@@ -208,7 +257,7 @@ def compute_losses(
         # from the GT cluster + predicted residual; min over the GT box and its flip.
         ph = decode_heading(hcls, pred_hres, nh)
         ps = decode_size(scl, pred_sres, mean_sizes)
-        pc = box_corners_torch(out["center"], ps, ph)
+        pc = box_corners_torch(head_c, ps, ph)
         gc = box_corners_torch(gt_c, gt_s, gt_h)
         gcf = box_corners_torch(gt_c, gt_s, gt_h + math.pi)
         dc = torch.minimum((pc - gc).norm(dim=2).mean(1), (pc - gcf).norm(dim=2).mean(1))
@@ -220,6 +269,8 @@ def compute_losses(
         with torch.no_grad():
             stats["center_err"] = _masked_mean(d2, pos)
             stats["corner_dist"] = _masked_mean(dc, pos)
+        if "box2_res" in out:
+            losses.update(_box2_terms(out, gt_c, gt_s, gt_h, pos, w))
 
     if "shape" in tasks:
         sh = pos & batch["has_shape"].bool()

@@ -14,6 +14,8 @@ Pipeline for a batch of frustums (points in the frustum frame ``F``, see
    ``NS`` size clusters + normalised residuals (see :mod:`.box_coder`); with
    ``box_context_widths`` it also gets a context PointNet's feature over every frustum
    point around the stage-1 centre with the hard mask as a channel (what surrounds the object);
+   with ``box2_widths`` a second box stage (:meth:`FrustumShapeNet.second_box_stage`) refines
+   that box from every frustum point seen in its own canonical frame;
    (b) shape head: ``M`` cuboid primitives in the canonical object frame (see
    :mod:`.primitives`), from the box feature and (``shape_branch="canonical"``) a small
    PointNet over the object points in the canonical frame of a box (``shape_box``: the GT
@@ -69,6 +71,14 @@ class FrustumShapeNet(nn.Module):
         self.box_head = FCHead(
             feat_c + nc + ctx_c, cfg.box_fc, box_head_channels(cfg.num_heading_bins, cfg.num_size_clusters), bn
         )
+        # second box stage: every frustum point in the first box's unit-cube frame, hard mask as
+        # a 4th channel; residual centre / log size / heading (zero output: the first box)
+        self.box2_mlp = SharedMLP(4, cfg.box2_widths, bn) if cfg.box2_widths else None
+        self.box2_head = None
+        if self.box2_mlp is not None:
+            self.box2_head = FCHead(self.box2_mlp.out_channels + feat_c + nc + 3, cfg.box2_fc, 7, bn)
+            nn.init.zeros_(self.box2_head.out.weight)
+            nn.init.zeros_(self.box2_head.out.bias)
         shape_in = feat_c + nc
         self.shape_mlp = None
         if cfg.shape_branch == "canonical":
@@ -156,6 +166,36 @@ class FrustumShapeNet(nn.Module):
         mean = (xyz * fgf).sum(1) / k.clamp_min(1).to(xyz.dtype).unsqueeze(-1)
         return obj, mean, count
 
+    def second_box_stage(
+        self,
+        xyz: torch.Tensor,
+        fg: torch.Tensor,
+        feat: torch.Tensor,
+        one_hot: torch.Tensor,
+        center: torch.Tensor,
+        heading: torch.Tensor,
+        size: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The second box stage (``box2_widths``): the box (``center`` (B,3), ``heading``
+        (B,) about F's z, ``size`` (B,3), all frame F, metres / radians, taken as constants)
+        refined from ``xyz`` (B,N,3, all frustum points) seen in its canonical frame divided by
+        its size, the hard mask ``fg`` (B,N), the box feature and the class one-hot. Returns
+        the refined centre, heading and size and the raw residuals (B,7): centre in box axes
+        and box sizes, log size, heading (radians)."""
+        c, s, h = center.detach(), size.detach(), heading.detach()
+        d = xyz - c.unsqueeze(1)
+        cos, sin = torch.cos(h).unsqueeze(1), torch.sin(h).unsqueeze(1)
+        q = torch.stack([cos * d[..., 0] + sin * d[..., 1], -sin * d[..., 0] + cos * d[..., 1], d[..., 2]], -1)
+        q = (q / s.clamp_min(0.02).unsqueeze(1)).clamp(-4.0, 4.0)
+        rfeat = self.box2_mlp.forward_max(torch.cat([q, fg.unsqueeze(-1).to(q.dtype)], -1))
+        r = self.box2_head(torch.cat([rfeat, feat, one_hot, torch.log(s.clamp_min(0.02))], 1))
+        r = r.to(c.dtype)
+        dq = r[:, 0:3] * s
+        cos, sin = cos.squeeze(1), sin.squeeze(1)
+        dc = torch.stack([cos * dq[:, 0] - sin * dq[:, 1], sin * dq[:, 0] + cos * dq[:, 1], dq[:, 2]], 1)
+        size2 = (s * torch.exp(r[:, 3:6].clamp(-1.0, 1.0))).clamp_min(0.02)
+        return c + dc, h + r[:, 6], size2, r
+
     # ------------------------------------------------------------------ forward
     def forward(
         self,
@@ -173,9 +213,10 @@ class FrustumShapeNet(nn.Module):
         canonicalises the shape branch's input (default: the predicted box, detached).
         ``seg_cache`` = the ``seg_glob`` / ``seg_local`` outputs of an earlier forward over the
         same ``points`` (any one-hot): the segmentation PointNet is skipped, same result.
-        Returns a dict of tensors (see the module docstring); ``box_heading``,
+        Returns a dict of tensors (see the module docstring); ``center``, ``box_heading``,
         ``box_size``, ``box_cluster`` are the decoded predicted box (size cluster = the
-        given class, else the size head's argmax), detached.
+        given class, else the size head's argmax; after the second box stage when the network
+        has one, which alone gives them gradients), ``center_head`` the box head's centre.
         """
         cfg = self.config
         if random_gather is None:
@@ -198,17 +239,21 @@ class FrustumShapeNet(nn.Module):
             around = torch.cat([xyz - stage1.unsqueeze(1), fg.unsqueeze(-1).to(xyz.dtype)], -1)
             box_in = torch.cat([fo, self.ctx_mlp.forward_max(around)], 1)
         heads = split_box_head(self.box_head(box_in), cfg.num_heading_bins, cfg.num_size_clusters)
-        center = stage1 + heads["center_res"]
+        center_head = stage1 + heads["center_res"]
         with torch.no_grad():
             hcls = heads["heading_scores"].argmax(1)
             heading = decode_heading(hcls, gather_bin(heads["heading_res_norm"], hcls), cfg.num_heading_bins)
             given = one_hot.sum(1) > 0
             cluster = torch.where(given, one_hot.argmax(1), heads["size_scores"].argmax(1))
             size = decode_size(cluster, gather_bin(heads["size_res_norm"], cluster), self.mean_sizes).clamp_min(0.02)
+        center = center_head
+        box2_res = None
+        if self.box2_mlp is not None:
+            center, heading, size, box2_res = self.second_box_stage(xyz, fg, feat, one_hot, center_head, heading, size)
         shape_in = fo
         if self.shape_mlp is not None:
             if shape_box is None:
-                sc, sh, ss = center.detach(), heading, size
+                sc, sh, ss = center.detach(), heading.detach(), size.detach()
             else:
                 sc, sh, ss = (t.detach() for t in shape_box)
             d = obj - sc.unsqueeze(1)
@@ -229,6 +274,7 @@ class FrustumShapeNet(nn.Module):
             "fg_count": fg_count,
             "mask_mean": mask_mean,
             "stage1_center": stage1,
+            "center_head": center_head,
             "center": center,
             "box_heading": heading,
             "box_size": size,
@@ -236,6 +282,8 @@ class FrustumShapeNet(nn.Module):
             "shape_raw": shape_raw.view(-1, cfg.num_primitives, 10),
             "cls_logits": cls_logits,
         }
+        if box2_res is not None:
+            out["box2_res"] = box2_res
         out.update(heads)
         return out
 

@@ -491,7 +491,8 @@ def plot_curves(history: dict[str, Any], path: str | Path) -> None:
                         0.38, col, 1, cv2.LINE_AA)
 
     steps = history.get("steps", [])
-    keys = ["total", "seg", "center", "corner", "heading_cls", "size_res", "coverage", "consistency", "part", "volume", "occupancy", "cls"]
+    keys = ["total", "seg", "center", "corner", "heading_cls", "size_res", "box2_corner", "coverage", "consistency", "part",
+            "volume", "occupancy", "cls"]
     series = []
     for k in keys:
         xs = [r["step"] for r in steps if k in r]
@@ -548,12 +549,14 @@ def _load_init(model: FrustumShapeNet, init_model: FrustumShapeNet, reinit: list
     """Copy ``init_model``'s parameters into ``model`` except those under the ``reinit``
     module-name prefixes, which keep their fresh initialisation. The model configs must be
     equal, except the primitive mapping when the shape head is re-initialised or gets its
-    first class anchors (``model`` has ``shape_anchors``, ``init_model`` not). Returns
+    first class anchors (``model`` has ``shape_anchors``, ``init_model`` not), and the box
+    context branch or second box stage when ``model`` adds them (both start as no-ops). Returns
     whether the class anchors came from ``init_model``."""
     prefixes = tuple(reinit or ())
     a, b = model.config.to_dict(), init_model.config.to_dict()
     new_anchors = model.shape_anchor is not None and init_model.shape_anchor is None
     new_context = model.ctx_mlp is not None and init_model.ctx_mlp is None
+    new_box2 = model.box2_mlp is not None and init_model.box2_mlp is None
     if new_anchors or any("shape_head".startswith(p) for p in prefixes):
         for k in _SHAPE_MAPPING_KEYS:
             a.pop(k), b.pop(k)
@@ -561,6 +564,9 @@ def _load_init(model: FrustumShapeNet, init_model: FrustumShapeNet, reinit: list
         a.pop("shape_anchors"), b.pop("shape_anchors")
     if new_context:
         a.pop("box_context_widths"), b.pop("box_context_widths")
+    if new_box2:
+        for k in ("box2_widths", "box2_fc"):
+            a.pop(k), b.pop(k)
     if a != b:
         raise ValueError("--init: its model config differs from the training config's")
 
@@ -569,6 +575,7 @@ def _load_init(model: FrustumShapeNet, init_model: FrustumShapeNet, reinit: list
             (bool(prefixes) and key.startswith(prefixes))
             or (new_anchors and key == "shape_anchor")
             or (new_context and key.startswith("ctx_mlp."))
+            or (new_box2 and key.startswith(("box2_mlp.", "box2_head.")))
         )
 
     state = {k: v for k, v in init_model.state_dict().items() if not fresh(k)}
