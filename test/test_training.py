@@ -279,18 +279,17 @@ def test_shape_anchors_start_at_the_class_templates_and_carry_over(ds, tmp_path)
     assert torch.equal(c_model.shape_anchor, b.shape_anchor)
 
 
-def test_box_context_branch_starts_as_the_init_model_and_then_learns(ds, tmp_path):
-    """A model with the frustum-context branch, initialised from one without: before any step
-    it computes exactly what the init model did (the new inputs of the box head start at zero);
-    a box fine-tune of ctx_mlp + box_head then changes only those."""
+def _grown_from_trained(ds, tmp_path, model: dict):
+    """Train a small network (run ``a``), then build one with the extra branches of ``model``
+    initialised from it, and check that before any step it computes exactly what ``a`` did.
+    Returns (train split, val split, a, a's outputs on 6 validation frustums, that batch)."""
     from shape_detector.model.network import FrustumShapeNet
     from shape_detector.training.train import _load_init
 
     tr, va = fds.split_by_frame(ds, 0.34, seed=0)
     train(_cfg(epochs=1), tr, va, tmp_path / "a", seed=3, print_fn=lambda s: None)
     a, _ = load_weights(tmp_path / "a" / "weights.pt")
-    ctx_model = dict(SMALL, box_context_widths=[16, 32])
-    b = FrustumShapeNet(_cfg(model=ctx_model).model_config())
+    b = FrustumShapeNet(_cfg(model=model).model_config())
     _load_init(b, a, None)
     a.eval(), b.eval()
     batch = TensorData(va, torch.device("cpu"), a.config.num_classes).batch(torch.arange(6), one_hot_mode="given")
@@ -298,6 +297,15 @@ def test_box_context_branch_starts_as_the_init_model_and_then_learns(ds, tmp_pat
         oa, ob = a(batch["points"], batch["one_hot"]), b(batch["points"], batch["one_hot"])
     for k in ("center", "box_size", "box_heading", "cls_logits", "shape_raw", "seg_logits"):
         assert torch.equal(oa[k], ob[k]), k
+    return tr, va, a, oa, batch
+
+
+def test_box_context_branch_starts_as_the_init_model_and_then_learns(ds, tmp_path):
+    """A model with the frustum-context branch, initialised from one without: before any step
+    it computes exactly what the init model did (the new inputs of the box head start at zero);
+    a box fine-tune of ctx_mlp + box_head then changes only those."""
+    ctx_model = dict(SMALL, box_context_widths=[16, 32])
+    tr, va, a, _, _ = _grown_from_trained(ds, tmp_path, ctx_model)
     train(_cfg(epochs=1, tasks="box", model=ctx_model, trainable=["ctx_mlp", "box_head"], lr=0.01), tr, va,
           tmp_path / "b", seed=4, print_fn=lambda s: None, init_weights=tmp_path / "a" / "weights.pt")
     c, meta = load_weights(tmp_path / "b" / "weights.pt")
@@ -319,21 +327,8 @@ def test_second_box_stage_starts_as_the_init_model_and_trains_alone(ds, tmp_path
     """A model with the second box stage, initialised from one without, computes exactly what
     the init did (its output layer starts at zero); a box fine-tune of box2_mlp +
     box2_head moves only those, and the refined box is what the weights then predict."""
-    from shape_detector.model.network import FrustumShapeNet
-    from shape_detector.training.train import _load_init
-
-    tr, va = fds.split_by_frame(ds, 0.34, seed=0)
-    train(_cfg(epochs=1), tr, va, tmp_path / "a", seed=3, print_fn=lambda s: None)
-    a, _ = load_weights(tmp_path / "a" / "weights.pt")
     ref_model = dict(SMALL, box2_widths=[16, 32], box2_fc=[16])
-    b = FrustumShapeNet(_cfg(model=ref_model).model_config())
-    _load_init(b, a, None)
-    a.eval(), b.eval()
-    batch = TensorData(va, torch.device("cpu"), a.config.num_classes).batch(torch.arange(6), one_hot_mode="given")
-    with torch.no_grad():
-        oa, ob = a(batch["points"], batch["one_hot"]), b(batch["points"], batch["one_hot"])
-    for k in ("center", "box_size", "box_heading", "cls_logits", "shape_raw", "seg_logits"):
-        assert torch.equal(oa[k], ob[k]), k
+    tr, va, a, oa, batch = _grown_from_trained(ds, tmp_path, ref_model)
     train(_cfg(epochs=2, tasks="box", model=ref_model, trainable=["box2_mlp", "box2_head"], lr=0.01), tr, va,
           tmp_path / "b", seed=4, print_fn=lambda s: None, init_weights=tmp_path / "a" / "weights.pt")
     c, meta = load_weights(tmp_path / "b" / "weights.pt")
