@@ -41,6 +41,13 @@ from .config import ModelConfig
 from .pointnet import FCHead, SharedMLP
 
 
+def to_box_axes(d: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
+    """Offsets ``d`` (B,N,3) in frame F expressed in the axes of boxes with yaw ``heading``
+    (B,) about F's z: ``R_z(-heading) d``."""
+    c, s = torch.cos(heading).unsqueeze(1), torch.sin(heading).unsqueeze(1)
+    return torch.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], d[..., 2]], -1)
+
+
 class FrustumShapeNet(nn.Module):
     def __init__(self, config: ModelConfig | None = None) -> None:
         super().__init__()
@@ -183,16 +190,11 @@ class FrustumShapeNet(nn.Module):
         the refined centre, heading and size and the raw residuals (B,7): centre in box axes
         and box sizes, log size, heading (radians)."""
         c, s, h = center.detach(), size.detach(), heading.detach()
-        d = xyz - c.unsqueeze(1)
-        cos, sin = torch.cos(h).unsqueeze(1), torch.sin(h).unsqueeze(1)
-        q = torch.stack([cos * d[..., 0] + sin * d[..., 1], -sin * d[..., 0] + cos * d[..., 1], d[..., 2]], -1)
-        q = (q / s.clamp_min(0.02).unsqueeze(1)).clamp(-4.0, 4.0)
+        q = (to_box_axes(xyz - c.unsqueeze(1), h) / s.clamp_min(0.02).unsqueeze(1)).clamp(-4.0, 4.0)
         rfeat = self.box2_mlp.forward_max(torch.cat([q, fg.unsqueeze(-1).to(q.dtype)], -1))
         r = self.box2_head(torch.cat([rfeat, feat, one_hot, torch.log(s.clamp_min(0.02))], 1))
         r = r.to(c.dtype)
-        dq = r[:, 0:3] * s
-        cos, sin = cos.squeeze(1), sin.squeeze(1)
-        dc = torch.stack([cos * dq[:, 0] - sin * dq[:, 1], sin * dq[:, 0] + cos * dq[:, 1], dq[:, 2]], 1)
+        dc = to_box_axes((r[:, 0:3] * s).unsqueeze(1), -h).squeeze(1)  # box axes -> frame F
         size2 = (s * torch.exp(r[:, 3:6].clamp(-1.0, 1.0))).clamp_min(0.02)
         return c + dc, h + r[:, 6], size2, r
 
@@ -256,10 +258,7 @@ class FrustumShapeNet(nn.Module):
                 sc, sh, ss = center.detach(), heading.detach(), size.detach()
             else:
                 sc, sh, ss = (t.detach() for t in shape_box)
-            d = obj - sc.unsqueeze(1)
-            c, s = torch.cos(sh).unsqueeze(1), torch.sin(sh).unsqueeze(1)
-            q = torch.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], d[..., 2]], -1)
-            q = q / ss.clamp_min(0.02).unsqueeze(1)
+            q = to_box_axes(obj - sc.unsqueeze(1), sh) / ss.clamp_min(0.02).unsqueeze(1)
             shape_in = torch.cat([fo, self.shape_mlp.forward_max(q)], 1)
         cls_logits = self.cls_head(torch.cat([seg_glob, feat], 1))
         shape_raw = self.shape_head(shape_in)
