@@ -24,6 +24,7 @@ from .geometry import upright_rotation
 from .inputs import normalize_inputs
 from .floor import snap_to_floor
 from .nms import nms_3d
+from .free_space import carve_all
 from .point_fit import grow_all_to_points
 from .primitive_snap import snap_primitives
 from .types import Object3D
@@ -166,6 +167,8 @@ class ShapeDetector:
     stands on the floor; the top is kept), 0 = off; see :mod:`shape_detector.floor`.
     ``point_fit``: grow each box to cover its segmented points between this quantile and
     its complement along each box axis (0 = off; see :mod:`shape_detector.point_fit`).
+    ``free_space``: then move each box's side and top faces inwards out of space the camera
+    sees through, never past the object's own points (see :mod:`shape_detector.free_space`).
     ``precision``: the network's arithmetic, ``"fp32"``, ``"bf16"`` (faster on CPUs with
     AMX / AVX512-BF16 for several frustums) or ``"auto"`` (bf16 for batches of 4 or more
     frustums on a CPU with AMX); see :class:`~shape_detector.model.predictor.FrustumPredictor`.
@@ -207,6 +210,7 @@ class ShapeDetector:
         workers: int = 2,
         floor_snap: float = 0.25,
         point_fit: float = 0.15,
+        free_space: bool = True,
         precision: str = "fp32",
         mirror_tta: str = "given",
         snap_primitives: bool = True,
@@ -244,6 +248,7 @@ class ShapeDetector:
         self.point_fit = float(point_fit)
         if not 0.0 <= self.point_fit < 0.5:
             raise ValueError(f"point_fit is a quantile in [0, 0.5), got {point_fit}")
+        self.free_space = bool(free_space)
         if mirror_tta not in ("given", "always", "never"):
             raise ValueError(f"mirror_tta must be 'given', 'always' or 'never', got {mirror_tta!r}")
         self.mirror_tta = mirror_tta
@@ -411,7 +416,10 @@ class ShapeDetector:
                     class_scores=np.asarray(pred.class_probs[: len(CLASS_TO_ID)], dtype=np.float64),
                 )
             )
-        objects = grow_all_to_points(objects, functools.partial(pixel_points, frame.depth, frame.K), self.point_fit)
+        points_cam = functools.partial(pixel_points, frame.depth, frame.K)
+        objects = grow_all_to_points(objects, points_cam, self.point_fit)
+        if self.free_space:
+            objects = carve_all(objects, frame.depth, frame.K, points_cam)
         objects = snap_to_floor(objects, frame.up, frame.floor_height, self.floor_snap)
         if not frame.given_boxes:  # built-in proposals overlap by design; given boxes are one per object
             objects = nms_3d(objects, self.nms_iou, decay=self.nms_decay, min_score=self.score_threshold)

@@ -41,18 +41,14 @@ def grow_to_points(obj: Object3D, points_cam: PointSource, quantile: float = 0.1
     accordingly and the primitives stretch with the box). Objects without enough points,
     or already covering the range, are returned unchanged.
     """
-    if obj.pixel_index is None or obj.seg_labels is None or quantile >= 0.5:
+    if quantile >= 0.5:
         return obj
-    idx = np.asarray(obj.pixel_index, dtype=np.int64)[np.asarray(obj.seg_labels, dtype=bool)]
-    if idx.size < MIN_POINTS:
-        return obj
-    p = np.asarray(points_cam(np.unique(idx)), dtype=np.float64)
-    p = p[np.all(np.isfinite(p), axis=1) & (p[:, 2] > 0)]
-    if len(p) < MIN_POINTS:
+    p = segmented_points(obj, points_cam)
+    if p is None:
         return obj
     R, c0 = obj.rotation, obj.center
     local = np.sort((p - c0) @ R, axis=0)  # box frame: columns of rotation = box axes
-    q_lo, q_hi = _sorted_quantile(local, quantile), _sorted_quantile(local, 1.0 - quantile)
+    q_lo, q_hi = sorted_quantile(local, quantile), sorted_quantile(local, 1.0 - quantile)
     half = 0.5 * obj.size
     if np.all(q_lo >= -half) and np.all(q_hi <= half):
         return obj  # the box already covers the range (most boxes): nothing to move
@@ -60,7 +56,21 @@ def grow_to_points(obj: Object3D, points_cam: PointSource, quantile: float = 0.1
     return obj
 
 
-def _sorted_quantile(a: np.ndarray, q: float) -> np.ndarray:
+def segmented_points(obj: Object3D, points_cam: PointSource) -> np.ndarray | None:
+    """Camera-frame points (n, 3) of ``obj``'s segmented pixels (``obj.pixel_index`` where
+    ``obj.seg_labels``), each pixel once, invalid depth dropped; None when the object has no
+    labels or fewer than ``MIN_POINTS`` valid points."""
+    if obj.pixel_index is None or obj.seg_labels is None:
+        return None
+    idx = np.asarray(obj.pixel_index, dtype=np.int64)[np.asarray(obj.seg_labels, dtype=bool)]
+    if idx.size < MIN_POINTS:
+        return None
+    p = np.asarray(points_cam(np.unique(idx)), dtype=np.float64)
+    p = p[np.all(np.isfinite(p), axis=1) & (p[:, 2] > 0)]
+    return p if len(p) >= MIN_POINTS else None
+
+
+def sorted_quantile(a: np.ndarray, q: float) -> np.ndarray:
     """Per-column ``q`` quantile of column-sorted ``a`` (n, k), linearly interpolated as
     numpy's default ``np.quantile`` (one sort serves both quantiles: 20 us against
     ``np.quantile``'s 107 us for 400 points, on the per-frame path for every detection)."""

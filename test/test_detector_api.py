@@ -38,13 +38,6 @@ def _check_object_contract(obj, up: np.ndarray) -> None:
         np.testing.assert_allclose(prim.rotation.T @ prim.rotation, np.eye(3), atol=1e-5)
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="issue #4 acceptance not met yet: the shipped (stage 4d, second box stage) weights place this box's "
-    "centre 5.02 cm off (7.8 cm with stage 4c, 14.5 cm with stage 4b); scripts/hand_placed_sweep.py over 54 "
-    "poses of the same box: median 7.4 cm in this wall-less scene, 3.1-4.1 cm with a back wall 3.5-5 m away; "
-    "the assertion stays at 5 cm until the model gets there",
-)
 def test_hand_placed_box_is_recovered_within_5cm(detector):
     """Issue #4's hand-placed box, one pose; `scripts/hand_placed_sweep.py` measures 54."""
     frame, centre, size, rotation = _dresser_scene()

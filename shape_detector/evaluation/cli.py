@@ -37,6 +37,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--point-fit", type=float, default=0.15,
                    help="grow boxes to cover their segmented points between this quantile and its complement "
                    "(0 = off; default 0.15)")
+    p.add_argument("--no-free-space", action="store_true",
+                   help="leave boxes where the camera sees through them (no free-space carving)")
     p.add_argument("--mirror-tta", default="given", choices=("given", "always", "never"),
                    help="mirrored second pass, averaged: for given boxes (default), always, or never")
     p.add_argument("--no-snap-primitives", action="store_true",
@@ -94,6 +96,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         detector = ShapeDetector(weights=args.weights, device=args.device, score_threshold=args.score_threshold,
                                  floor_snap=args.floor_snap, point_fit=args.point_fit,
+                                 free_space=not args.no_free_space,
                                  mirror_tta=args.mirror_tta, snap_primitives=not args.no_snap_primitives,
                                  nms_decay=args.nms_decay, precision=args.precision,
                                  classifier=_classifier(args.classifier),
@@ -132,6 +135,7 @@ def main(args: argparse.Namespace) -> int:
             "score_threshold": args.score_threshold,
             "floor_snap_m": args.floor_snap,
             "point_fit_quantile": args.point_fit,
+            "free_space": not args.no_free_space,
             "snap_primitives": not args.no_snap_primitives,
             "mirror_tta": args.mirror_tta,
             "nms_decay": args.nms_decay,

@@ -1,0 +1,245 @@
+"""Shrink amodal boxes out of space the camera sees through (free-space carving).
+
+The network guesses an object's hidden extent, and sometimes guesses too much: a dresser
+0.53 m deep predicted 0.62 m, its far face 9 cm behind the real one. Where the camera sees
+*past* a part of such a box -- the measured depth at a pixel lies behind a point of the box
+that projects there -- that part is observed to be empty. :func:`carve_free_space` walks
+each side face (``±x``, ``±y``) of the box inwards in thin layers, and removes a layer when
+
+* at least ``min_free`` of its lattice samples are seen through: the measured depth exceeds
+  the sample's own depth by more than ``margin + margin_per_m * z`` (optical frame, z
+  forward, metres), with at most ``max_surface_ratio`` samples per seen-through one lying
+  on a measured surface (within that margin);
+* at least ``min_top_free`` of them lie in the layer's top rows: the box's upper edge there
+  is seen past. The air under a table top or a chair seat is seen through too, but not
+  their top edge;
+* it holds at most ``max_occupied`` measured points (of any pixel, not only the object's
+  own; points within ``floor_band`` of the box bottom are floor);
+* the face stays outside the ``fg_quantile`` / ``1 - fg_quantile`` range of the object's own
+  segmented points along that axis, and moves by at most ``max_frac`` of the box's size.
+
+The top face is carved the same way for the classes of ``top_classes`` (flat-topped
+furniture: a table top, a dresser's or a bookshelf's top board spans the footprint); the
+thin upper parts of others (chair backs, headboards) often drop out of noisy depth at range,
+and carving would cut them off. The bottom is left to the floor snap
+(:mod:`shape_detector.floor`).
+
+Faces are carved in rounds, the face whose outer layer is seen through most first: a face
+too far out makes its neighbours' layers look seen through where they overlap its excess.
+Space hidden behind something nearer (another object, the object itself) is never seen
+through, so occluded parts are never carved: only guesses the image contradicts are.
+
+Measured on the validation frames (200, GT 2D boxes): mAP@0.5 82.0 -> 82.8, mean 3D IoU
+0.666 -> 0.678; the hand-placed box of issue #4 (54 poses, no walls): median centre error
+7.4 -> 4.0 cm. Pure numpy, about 1 ms per object; boxes change through
+:meth:`Object3D.set_extent`, so primitives stretch with them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .point_fit import PointSource, segmented_points, sorted_quantile
+from .types import Object3D
+
+
+#: flat-topped furniture: the top surface spans the footprint
+FLAT_TOPPED = frozenset({"table", "desk", "dresser", "night_stand", "bookshelf"})
+
+
+@dataclass(frozen=True)
+class CarveParams:
+    """Settings of :func:`carve_free_space` (metres unless said)."""
+
+    #: thickness of one carved layer
+    step: float = 0.02
+    #: a face moves inwards by at most this share of the box's size along its axis
+    max_frac: float = 0.4
+    #: samples per layer along each of the face's two axes
+    grid: int = 12
+    #: seen-through test: measured depth > point depth + margin + margin_per_m * depth
+    margin: float = 0.03
+    margin_per_m: float = 0.01
+    #: a layer needs at least this many seen-through samples ...
+    min_free: int = 4
+    #: ... and at most this many samples on an observed surface per seen-through one
+    max_surface_ratio: float = 0.5
+    #: the face stops at this quantile of the object's own points along its axis
+    fg_quantile: float = 0.02
+    #: a layer holding more than this many measured points (any pixel's, not only the
+    #: object's segmented ones) is occupied and stops its face
+    max_occupied: int = 1
+    #: measured points this close above the box bottom (the floor) do not count as occupying
+    floor_band: float = 0.05
+    #: classes whose top face is carved too (the bottom is left to the floor snap)
+    top_classes: frozenset[str] = FLAT_TOPPED
+    #: a side layer also needs this many seen-through samples in its top ``top_rows`` rows
+    #: of the sample lattice: the box's upper edge there is seen past (air under a table
+    #: top or a chair seat is seen through too, its top edge is not)
+    min_top_free: int = 2
+    top_rows: int = 2
+    #: at most about this many pixels of the box's image rectangle are back-projected
+    max_pixels: int = 6000
+
+
+def _layer_samples(lo: np.ndarray, hi: np.ndarray, axis: int, sign: float, depth_in: np.ndarray, grid: int) -> np.ndarray:
+    """Box-frame sample points (L, grid*grid, 3) of the box ``[lo, hi]``'s layers at the
+    mid-depths ``depth_in`` (L,) inside its face on ``axis`` / ``sign``, each a ``grid``
+    x ``grid`` lattice over the face."""
+    o1, o2 = [a for a in range(3) if a != axis]
+    t = (np.arange(grid) + 0.5) / grid
+    g1, g2 = np.meshgrid(lo[o1] + t * (hi[o1] - lo[o1]), lo[o2] + t * (hi[o2] - lo[o2]), indexing="ij")
+    pts = np.zeros((len(depth_in), grid * grid, 3))
+    pts[:, :, o1] = g1.reshape(-1)
+    pts[:, :, o2] = g2.reshape(-1)
+    pts[:, :, axis] = (hi[axis] - depth_in if sign > 0 else lo[axis] + depth_in)[:, None]
+    return pts
+
+
+def _seen_through(cam: np.ndarray, depth: np.ndarray, K: np.ndarray, p: CarveParams) -> tuple[np.ndarray, np.ndarray]:
+    """(free, surface) bool arrays for camera-frame points ``cam`` (..., 3) that project
+    inside the image onto valid depth: ``free`` = the measured depth lies behind the point
+    by more than the margin (seen through), ``surface`` = within the margin of it (an
+    observed surface there). Points with something nearer in front are neither."""
+    h, w = depth.shape
+    z = cam[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.floor(K[0, 0] * cam[..., 0] / z + K[0, 2] + 0.5)
+        v = np.floor(K[1, 1] * cam[..., 1] / z + K[1, 2] + 0.5)
+    inside = (z > 0.05) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    d = np.full(z.shape, np.nan)
+    d[inside] = depth[v[inside].astype(np.int64), u[inside].astype(np.int64)]
+    with np.errstate(invalid="ignore"):
+        known = inside & np.isfinite(d) & (d > 0)
+        tol = p.margin + p.margin_per_m * z
+        free = known & (d > z + tol)
+        surface = known & (np.abs(d - z) <= tol)
+    return free, surface
+
+
+def _box_points(c: np.ndarray, R: np.ndarray, half: np.ndarray, depth: np.ndarray, K: np.ndarray, max_pixels: int) -> np.ndarray:
+    """Box-frame points (n, 3) of the valid depth pixels in the image rectangle the box
+    projects into (every ``s``-th row and column, ``s`` chosen to keep about
+    ``max_pixels``). Empty when the box lies behind the camera."""
+    h, w = depth.shape
+    corners = (np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1], indexing="ij")).reshape(3, -1).T * half) @ R.T + c
+    if np.any(corners[:, 2] <= 0.05):
+        return np.zeros((0, 3))
+    u = K[0, 0] * corners[:, 0] / corners[:, 2] + K[0, 2]
+    v = K[1, 1] * corners[:, 1] / corners[:, 2] + K[1, 2]
+    u0, u1 = int(np.clip(np.floor(u.min()), 0, w)), int(np.clip(np.ceil(u.max()) + 1, 0, w))
+    v0, v1 = int(np.clip(np.floor(v.min()), 0, h)), int(np.clip(np.ceil(v.max()) + 1, 0, h))
+    if u1 <= u0 or v1 <= v0:
+        return np.zeros((0, 3))
+    s = max(1, int(np.ceil(np.sqrt((u1 - u0) * (v1 - v0) / max(max_pixels, 1)))))
+    vv, uu = np.mgrid[v0:v1:s, u0:u1:s]
+    z = depth[vv, uu].astype(np.float64)
+    ok = np.isfinite(z) & (z > 0)
+    z, uu, vv = z[ok], uu[ok], vv[ok]
+    cam = np.stack([(uu - K[0, 2]) / K[0, 0] * z, (vv - K[1, 2]) / K[1, 1] * z, z], axis=1)
+    return (cam - c) @ R
+
+
+def _occupied(local: np.ndarray, lo: np.ndarray, hi: np.ndarray, axis: int, sign: float, n: int, p: CarveParams) -> np.ndarray:
+    """(n,) counts of the box-frame points ``local`` in each of the ``n`` layers inside the
+    face on ``axis`` / ``sign`` of the box ``[lo, hi]`` (points within ``floor_band`` of
+    the box bottom left out)."""
+    o1, o2 = [a for a in range(3) if a != axis]
+    q = local
+    keep = (q[:, o1] >= lo[o1]) & (q[:, o1] <= hi[o1]) & (q[:, o2] >= lo[o2]) & (q[:, o2] <= hi[o2])
+    keep &= q[:, 2] >= lo[2] + p.floor_band
+    d = (hi[axis] - q[keep, axis]) if sign > 0 else (q[keep, axis] - lo[axis])
+    k = np.floor(d / p.step).astype(np.int64)
+    k = k[(k >= 0) & (k < n)]
+    return np.bincount(k, minlength=n)
+
+
+class _View:
+    """One box's view of the frame: pose, depth, intrinsics, and (computed on first use)
+    the box-frame measured points of its image rectangle."""
+
+    def __init__(self, c: np.ndarray, R: np.ndarray, half: np.ndarray, depth: np.ndarray, K: np.ndarray, p: CarveParams):
+        self.c, self.R, self.half, self.depth, self.K, self.p = c, R, half, depth, K, p
+        self._measured: np.ndarray | None = None
+
+    @property
+    def measured(self) -> np.ndarray:
+        if self._measured is None:
+            self._measured = _box_points(self.c, self.R, self.half, self.depth, self.K, self.p.max_pixels)
+        return self._measured
+
+
+def _layer_ok(lo: np.ndarray, hi: np.ndarray, axis: int, sign: float, n: int, view: _View) -> tuple[np.ndarray, np.ndarray]:
+    """(ok (n,) bool, seen-through counts (n,)) of the ``n`` outermost layers inside the face
+    on ``axis`` / ``sign`` of the box ``[lo, hi]`` (box frame of ``view``)."""
+    c, R, depth, K, p = view.c, view.R, view.depth, view.K, view.p
+    mids = (np.arange(n) + 0.5) * p.step
+    cam = _layer_samples(lo, hi, axis, sign, mids, p.grid) @ R.T + c
+    free, surface = _seen_through(cam, depth, K, p)
+    nf, ns = free.sum(1), surface.sum(1)
+    ok = (nf >= p.min_free) & (ns <= p.max_surface_ratio * nf)
+    if axis != 2:  # side face: the lattice's second axis is z (up), its last rows on top
+        ok &= free.reshape(n, p.grid, p.grid)[:, :, -p.top_rows:].sum((1, 2)) >= p.min_top_free
+    if ok.any():
+        ok &= _occupied(view.measured, lo, hi, axis, sign, n, p) <= p.max_occupied
+    return ok, nf
+
+
+def carve_free_space(
+    obj: Object3D, depth: np.ndarray, K: np.ndarray, points_cam: PointSource, params: CarveParams | None = None
+) -> Object3D:
+    """``obj`` with its side (and, for ``top_classes``, top) faces moved inwards out of
+    seen-through space (in place; see the module docstring).
+
+    ``depth``: HxW metres (optical frame z; NaN / 0 invalid), ``K``: 3x3 intrinsics,
+    ``points_cam``: flat pixel indices -> camera-frame points (see
+    :func:`shape_detector.point_fit.grow_to_points`); ``obj.pixel_index`` and
+    ``obj.seg_labels`` select the object's own points. Objects with fewer than
+    ``point_fit.MIN_POINTS`` segmented points are returned unchanged.
+    """
+    p = params or CarveParams()
+    pts = segmented_points(obj, points_cam)
+    if pts is None:
+        return obj
+    R, c = obj.rotation, obj.center
+    half = 0.5 * np.asarray(obj.size, dtype=np.float64)
+    local = np.sort((pts - c) @ R, axis=0)
+    lo, hi = -half.copy(), half.copy()
+    # a face moves in by at most max_frac of the size, and never past the object's own points
+    stop_hi = np.maximum(half - p.max_frac * 2.0 * half, sorted_quantile(local, 1.0 - p.fg_quantile))
+    stop_lo = np.minimum(-half + p.max_frac * 2.0 * half, sorted_quantile(local, p.fg_quantile))
+    view = _View(c, R, half, depth, K, p)
+    faces = ((0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0), (2, 1.0))[: 5 if obj.class_name in p.top_classes else 4]
+    for _ in range(2 * len(faces)):  # rounds: the face whose outer layer is seen through most first
+        best = None
+        for axis, sign in faces:
+            room = hi[axis] - stop_hi[axis] if sign > 0 else stop_lo[axis] - lo[axis]
+            n = int(np.floor(room / p.step + 1e-9))
+            if n <= 0:
+                continue
+            ok, nf = _layer_ok(lo, hi, axis, sign, 1, view)  # most faces stop here
+            if not ok[0] or (best is not None and nf[0] <= best[0]):
+                continue
+            if n > 1:
+                ok, _ = _layer_ok(lo, hi, axis, sign, n, view)
+            best = (int(nf[0]), axis, sign, int(np.argmin(ok)) if not ok.all() else n)
+        if best is None:
+            break
+        _, axis, sign, run = best
+        if sign > 0:
+            hi[axis] -= run * p.step
+        else:
+            lo[axis] += run * p.step
+    if np.all(lo == -half) and np.all(hi == half):
+        return obj
+    obj.set_extent(lo, hi)
+    return obj
+
+
+def carve_all(
+    objects: list[Object3D], depth: np.ndarray, K: np.ndarray, points_cam: PointSource, params: CarveParams | None = None
+) -> list[Object3D]:
+    """:func:`carve_free_space` on each object."""
+    return [carve_free_space(o, depth, K, points_cam, params) for o in objects]

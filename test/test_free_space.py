@@ -1,0 +1,137 @@
+"""Free-space carving: boxes shrink out of space the depth map sees through, and only there."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+
+from shape_detector.free_space import FLAT_TOPPED, CarveParams, carve_free_space
+from shape_detector.frustum import pixel_points
+from shape_detector.proposals.evaluate import chair_parts, placed_box_scene, toy_scene
+from shape_detector.types import Cuboid, Object3D
+
+SIZE = np.array([0.53, 1.00, 1.17])
+
+
+def _dresser(yaw: float = 0.35):
+    frame, centre, rotation = placed_box_scene("dresser", SIZE, 0.25, 2.6, yaw, 12.0, 1.3)
+    return frame, centre, rotation
+
+
+def _object(frame, centre, rotation, lo, hi, iid: int = 1) -> Object3D:
+    """An Object3D spanning [lo, hi] in the box frame of (centre, rotation), its points the
+    instance's pixels, with one primitive filling the box."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    c = centre + rotation @ (0.5 * (lo + hi))
+    pix = np.flatnonzero(frame.instance_mask.ravel() == iid)
+    return Object3D("dresser", 1.0, c, hi - lo, rotation, primitives=[Cuboid(c, hi - lo, rotation)],
+                    pixel_index=pix, seg_labels=np.ones(pix.size, dtype=bool))
+
+
+def _carve(frame, obj, depth=None):
+    depth = frame.depth if depth is None else depth
+    return carve_free_space(obj, depth, frame.K, functools.partial(pixel_points, depth, frame.K))
+
+
+#: the camera sees the box's -x and -y faces and its top; +x and +y face away
+HIDDEN_GROWTH = (np.zeros(3), np.array([0.10, 0.0, 0.08]))
+
+
+def test_a_box_grown_on_its_hidden_sides_and_top_is_carved_back():
+    frame, centre, R = _dresser()
+    half = SIZE / 2
+    assert np.all(((-centre) @ R)[:2] < -half[:2])  # the camera is on the -x / -y side
+    # 10 cm too deep at +x (hidden but for a sliver past the -y edge), 8 cm too tall (seen
+    # against the background)
+    obj = _object(frame, centre, R, -half - HIDDEN_GROWTH[0], half + HIDDEN_GROWTH[1])
+    _carve(frame, obj)
+    hi = R.T @ (obj.center - centre) + obj.size / 2
+    assert abs(hi[2] - half[2]) <= 0.025, hi  # within one 2 cm layer
+    assert half[0] - 0.02 <= hi[0] <= half[0] + 0.06, hi  # at least 4 of the 10 cm
+    np.testing.assert_allclose(hi[1], half[1], atol=1e-9)
+    # the primitive stretched with the box
+    np.testing.assert_allclose(obj.primitives[0].size, obj.size, atol=1e-9)
+    np.testing.assert_allclose(obj.primitives[0].center, obj.center, atol=1e-9)
+
+
+def test_the_true_box_is_left_alone():
+    frame, centre, R = _dresser()
+    obj = _object(frame, centre, R, -SIZE / 2, SIZE / 2)
+    _carve(frame, obj)
+    assert np.all(obj.size >= SIZE - 0.02 - 1e-9), obj.size
+    assert np.linalg.norm(obj.center - centre) <= 0.015
+
+
+def test_the_top_is_carved_only_for_flat_topped_classes():
+    frame, centre, R = _dresser()
+    half = SIZE / 2
+    grown = (-half, half + [0.0, 0.0, 0.10])
+    tops = {}
+    for name in ("dresser", "chair"):
+        obj = _object(frame, centre, R, *grown)
+        obj.class_name = name
+        _carve(frame, obj)
+        tops[name] = (R.T @ (obj.center - centre) + obj.size / 2)[2]
+    assert "dresser" in FLAT_TOPPED and "chair" not in FLAT_TOPPED
+    assert tops["dresser"] <= half[2] + 0.025
+    assert tops["chair"] == pytest.approx(half[2] + 0.10)
+
+
+def test_a_box_grown_towards_the_camera_is_carved_back():
+    frame, centre, R = _dresser()
+    half = SIZE / 2
+    obj = _object(frame, centre, R, -half - [0.15, 0.12, 0.0], half)
+    _carve(frame, obj)
+    # back to within the seen-through margin (3 cm + 1 cm per metre of depth, here ~5.7 cm)
+    lo = R.T @ (obj.center - centre) - obj.size / 2
+    assert np.all(lo[:2] >= -half[:2] - 0.06) and np.all(lo[:2] <= -half[:2] + 0.02), lo
+
+
+def test_occluded_space_is_not_carved():
+    frame, centre, R = _dresser()
+    # everything but the object is a near occluder: nothing around the box is seen through
+    depth = frame.depth.copy()
+    depth[frame.instance_mask != 1] = 0.5
+    half = SIZE / 2
+    obj = _object(frame, centre, R, -half - HIDDEN_GROWTH[0], half + HIDDEN_GROWTH[1])
+    size0 = obj.size.copy()
+    _carve(frame, obj, depth)
+    np.testing.assert_allclose(obj.size, size0)
+
+
+def test_air_inside_the_object_is_not_carved_past_its_points():
+    # a chair: the camera sees through its legs and under its seat, but its box is bounded
+    # by its own points (seat, back, legs), so the box keeps its extent
+    frame = toy_scene([("chair", chair_parts(0.3, 2.2))], cam_height=1.3)
+    g = frame.objects[0]
+    obj = Object3D("chair", 1.0, g.center, g.size, g.rotation,
+                   pixel_index=np.flatnonzero(frame.instance_mask.ravel() == g.instance_id),
+                   seg_labels=None)
+    obj.seg_labels = np.ones(obj.pixel_index.size, dtype=bool)
+    _carve(frame, obj)
+    assert np.all(obj.size >= g.size - 0.03), (obj.size, g.size)
+
+
+def test_too_few_points_or_no_labels_leave_the_box_unchanged():
+    frame, centre, R = _dresser()
+    half = SIZE / 2
+    obj = _object(frame, centre, R, -half - [0.10, 0.0, 0.0], half)
+    obj.seg_labels = np.zeros_like(obj.seg_labels)
+    _carve(frame, obj)
+    np.testing.assert_allclose(obj.size, SIZE + [0.10, 0.0, 0.0])
+    obj.seg_labels = None
+    _carve(frame, obj)
+    np.testing.assert_allclose(obj.size, SIZE + [0.10, 0.0, 0.0])
+
+
+def test_max_frac_bounds_the_carving():
+    frame, centre, R = _dresser()
+    half = SIZE / 2
+    obj = _object(frame, centre, R, -half - [0.40, 0.0, 0.0], half)
+    p = CarveParams(max_frac=0.1)
+    carve_free_space(obj, frame.depth, frame.K, functools.partial(pixel_points, frame.depth, frame.K), p)
+    # at most 10% of the 0.93 m length, in whole 2 cm steps
+    assert obj.size[0] >= 0.93 - 0.1 * 0.93 - 1e-9
+    assert obj.size[0] < 0.93
