@@ -33,6 +33,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weights", default=None, help="weights for network/pipeline/node (default: packaged)")
     p.add_argument("--no-classifier", action="store_true", help="pipeline: without the proposal classifier")
     p.add_argument("--no-refine", action="store_true", help="pipeline: without the class-given second pass")
+    p.add_argument("--no-free-space", action="store_true", help="pipeline: without free-space carving")
     p.add_argument("--no-trace", action="store_true",
                    help="network, pipeline: the eager forward instead of the TorchScript graphs")
     p.add_argument("--pipeline-split", default="auto", choices=("auto", "prepare", "network"),
@@ -52,6 +53,7 @@ def bench_pipeline(
     refine: bool = True,
     pipeline_split: str = "auto",
     trace: bool = True,
+    free_space: bool = True,
 ) -> dict:
     """Median / p95 ms per VGA frame of ``ShapeDetector.detect`` with GT boxes and with built-in
     proposals, then the built-in throughput with the node's two-thread pipeline."""
@@ -60,7 +62,7 @@ def bench_pipeline(
 
     det = ShapeDetector(
         weights=weights, score_threshold=0.0, num_threads=threads, workers=workers, precision=precision,
-        max_objects=max_objects, classifier=classifier, refine=refine, trace=trace,
+        max_objects=max_objects, classifier=classifier, refine=refine, trace=trace, free_space=free_space,
     )
     scenes = [generate_frame(10_000 + i) for i in range(frames)]
     det.warm_up()  # as the node does at start: the network's graphs are traced
@@ -192,6 +194,7 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
             frames=args.frames, weights=args.weights, threads=args.threads, workers=args.workers,
             precision=args.precision, max_objects=args.max_objects, classifier=not args.no_classifier,
             refine=not args.no_refine, pipeline_split=args.pipeline_split, trace=not args.no_trace,
+            free_space=not args.no_free_space,
         )
     if target == "node":
         from .node_bench import bench_node

@@ -418,9 +418,9 @@ class ShapeDetector:
             )
         points_cam = functools.partial(pixel_points, frame.depth, frame.K)
         objects = grow_all_to_points(objects, points_cam, self.point_fit)
-        if self.free_space:
-            objects = carve_all(objects, frame.depth, frame.K, points_cam)
         objects = snap_to_floor(objects, frame.up, frame.floor_height, self.floor_snap)
+        if self.free_space:  # after the floor snap: measured points near the box bottom are floor
+            objects = carve_all(objects, frame.depth, frame.K, points_cam)
         if not frame.given_boxes:  # built-in proposals overlap by design; given boxes are one per object
             objects = nms_3d(objects, self.nms_iou, decay=self.nms_decay, min_score=self.score_threshold)
         if self.snap_primitives:

@@ -63,6 +63,8 @@ PARAMETERS: dict[str, tuple[Any, str, bool, dict]] = {
     "refine_min_score": (0.3, "score (after the proposal classifier) a built-in proposal needs for the class-given "
                          "second pass", False,
                          {"floating_point_range": [FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)]}),
+    "free_space": (True, "shrink boxes out of space the depth map sees through (side faces; the top of "
+                   "flat-topped classes), never past measured points", False, {}),
     "classifier": ("", "proposal classifier file that re-decides the class of built-in proposals; empty = the "
                    "packaged one, 'none' = off (the network's class head decides) (detector reloaded when "
                    "changed)", False, {}),
@@ -119,7 +121,7 @@ _CHOICES = {
 _REBUILD = ("weights", "device", "classifier")
 #: parameters the node sets on a built detector that has the attribute (custom factories
 #: need not take them as constructor arguments); dynamic
-_DETECTOR_ATTRS = ("score_threshold", "max_objects", "nms_decay", "refine", "refine_min_score")
+_DETECTOR_ATTRS = ("score_threshold", "max_objects", "nms_decay", "refine", "refine_min_score", "free_space")
 
 
 @dataclass
@@ -285,7 +287,7 @@ class DetectorNode(Node):
             factory = ShapeDetector
         t = time.perf_counter()
         det = factory(**kwargs)
-        for name in ("nms_decay", "refine", "refine_min_score"):  # not constructor arguments: custom
+        for name in ("nms_decay", "refine", "refine_min_score", "free_space"):  # not constructor arguments: custom
             if hasattr(det, name):  # factories need not take them
                 setattr(det, name, type(getattr(det, name))(self.p[name]))
         if hasattr(det, "warm_up"):  # first-call costs now, not on the first camera frame

@@ -35,6 +35,7 @@ class FakeDetector:
         self.nms_decay = 0.1
         self.refine = True
         self.refine_min_score = 0.1
+        self.free_space = True
 
     def detect(self, rgb, depth, K, boxes2d=None, up=None):
         self.calls.append({"shape": rgb.shape, "up": up, "t": time.monotonic()})
@@ -190,6 +191,7 @@ def test_parameters_dynamic_and_validated(harness):
     res = n.set_parameters([Parameter("refine", value=False), Parameter("refine_min_score", value=0.25)])
     assert all(r.successful for r in res) and det.refine is False and det.refine_min_score == 0.25
     assert not n.set_parameters([Parameter("refine_min_score", value=-0.1)])[0].successful  # out of range
+    assert n.set_parameters([Parameter("free_space", value=False)])[0].successful and det.free_space is False
     res = n.set_parameters([Parameter("sync_slop", value=0.001), Parameter("sync_queue_size", value=4)])
     assert all(r.successful for r in res) and n.sync.slop_ns == MS and n.sync.queue_size == 4
     assert not n.set_parameters([Parameter("up_source", value="gyro")])[0].successful
@@ -346,10 +348,11 @@ def test_classifier_and_second_pass_parameters_reach_the_detector(ros_context):
 
     for value, expect in (("", None), ("none", False), ("/some/classifier.pt", "/some/classifier.pt")):
         params = [Parameter("classifier", value=value), Parameter("refine", value=False),
-                  Parameter("refine_min_score", value=0.4)]
+                  Parameter("refine_min_score", value=0.4), Parameter("free_space", value=False)]
         node = DetectorNode("sd_factory", context=ros_context, detector_factory=factory, parameter_overrides=params)
         try:
             assert built[-1].get("classifier", None) == expect
             assert node.detector.refine is False and node.detector.refine_min_score == 0.4
+            assert node.detector.free_space is False
         finally:
             node.destroy_node()
