@@ -62,7 +62,8 @@ $(DATA)/test/index.json: | $(STAMP)
 # per-class primitive anchors, in the GT box's and its own box's frame (runs/anchors); the box head
 # with the frustum-context PointNet added, on stage 3's data (runs/boxctx; all else frozen); the second box
 # stage (a PointNet over the frustum in the first box's own frame) added and trained alone on the same data
-# (runs/box2); then the proposal classifier
+# (runs/box2); the shape branch again on top of it, in the refined boxes it is now given (runs/shape4e); then
+# the proposal classifier
 # on the shipped network's built-in-proposal candidates of the training frames and 3000 more
 # (seed 6; runs/cls).
 weights: $(DATA)/train/index.json $(DATA)/val/index.json $(DATA)/extra/index.json
@@ -73,7 +74,8 @@ weights: $(DATA)/train/index.json $(DATA)/val/index.json $(DATA)/extra/index.jso
 	$(SD) train --config shape_detector/training/configs/shape_anchors.json --data runs/main/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/shape4/best.pt --out runs/anchors --seed 3 --device cpu --threads 1
 	$(SD) train --config shape_detector/training/configs/box_context.json --data runs/main/frustums_train_*.npz runs/ft/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/anchors/best.pt --out runs/boxctx --seed 4 --device cpu --threads 2
 	$(SD) train --config shape_detector/training/configs/box_stage2.json --data runs/main/frustums_train_*.npz runs/ft/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/boxctx/best.pt --out runs/box2 --seed 5 --device cpu --threads 2
-	cp runs/box2/best.pt shape_detector/weights/default.pt
+	$(SD) train --config shape_detector/training/configs/shape_refresh.json --data runs/main/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/box2/best.pt --out runs/shape4e --seed 7 --device cpu --threads 2
+	cp runs/shape4e/best.pt shape_detector/weights/default.pt
 	$(SD) train-classifier --data $(DATA)/train $(DATA)/extra --weights shape_detector/weights/default.pt --out runs/cls --seed 0 --workers 2 --threads 2
 	cp runs/cls/classifier.pt shape_detector/weights/classifier.pt
 
