@@ -167,8 +167,9 @@ class ShapeDetector:
     stands on the floor; the top is kept), 0 = off; see :mod:`shape_detector.floor`.
     ``point_fit``: grow each box to cover its segmented points between this quantile and
     its complement along each box axis (0 = off; see :mod:`shape_detector.point_fit`).
-    ``free_space``: then move each box's side and top faces inwards out of space the camera
-    sees through, never past the object's own points (see :mod:`shape_detector.free_space`).
+    ``free_space``: after the floor snap, move each box's side faces (and the top face of
+    flat-topped classes) inwards out of space the camera sees through, never past measured
+    points or the object's own; chairs are left alone (see :mod:`shape_detector.free_space`).
     ``precision``: the network's arithmetic, ``"fp32"``, ``"bf16"`` (faster on CPUs with
     AMX / AVX512-BF16 for several frustums) or ``"auto"`` (bf16 for batches of 4 or more
     frustums on a CPU with AMX); see :class:`~shape_detector.model.predictor.FrustumPredictor`.
