@@ -43,6 +43,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .classes import CLASSES
+from .frustum import pixel_points
+from .geometry import box_corners, project_points
 from .point_fit import PointSource, segmented_points, sorted_quantile
 from .types import Object3D
 
@@ -113,8 +115,8 @@ def _seen_through(cam: np.ndarray, depth: np.ndarray, K: np.ndarray, p: CarvePar
     h, w = depth.shape
     z = cam[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.floor(K[0, 0] * cam[..., 0] / z + K[0, 2] + 0.5)
-        v = np.floor(K[1, 1] * cam[..., 1] / z + K[1, 2] + 0.5)
+        uv = np.floor(project_points(cam.reshape(-1, 3), K) + 0.5).reshape(*z.shape, 2)
+    u, v = uv[..., 0], uv[..., 1]
     inside = (z > 0.05) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
     d = np.full(z.shape, np.nan)
     d[inside] = depth[v[inside].astype(np.int64), u[inside].astype(np.int64)]
@@ -131,21 +133,18 @@ def _box_points(c: np.ndarray, R: np.ndarray, half: np.ndarray, depth: np.ndarra
     projects into (every ``s``-th row and column, ``s`` chosen to keep about
     ``max_pixels``). Empty when the box lies behind the camera."""
     h, w = depth.shape
-    corners = (np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1], indexing="ij")).reshape(3, -1).T * half) @ R.T + c
+    corners = box_corners(c, 2.0 * half, R)
     if np.any(corners[:, 2] <= 0.05):
         return np.zeros((0, 3))
-    u = K[0, 0] * corners[:, 0] / corners[:, 2] + K[0, 2]
-    v = K[1, 1] * corners[:, 1] / corners[:, 2] + K[1, 2]
-    u0, u1 = int(np.clip(np.floor(u.min()), 0, w)), int(np.clip(np.ceil(u.max()) + 1, 0, w))
-    v0, v1 = int(np.clip(np.floor(v.min()), 0, h)), int(np.clip(np.ceil(v.max()) + 1, 0, h))
+    uv = project_points(corners, K)
+    u0, u1 = int(np.clip(np.floor(uv[:, 0].min()), 0, w)), int(np.clip(np.ceil(uv[:, 0].max()) + 1, 0, w))
+    v0, v1 = int(np.clip(np.floor(uv[:, 1].min()), 0, h)), int(np.clip(np.ceil(uv[:, 1].max()) + 1, 0, h))
     if u1 <= u0 or v1 <= v0:
         return np.zeros((0, 3))
     s = max(1, int(np.ceil(np.sqrt((u1 - u0) * (v1 - v0) / max(max_pixels, 1)))))
     vv, uu = np.mgrid[v0:v1:s, u0:u1:s]
-    z = depth[vv, uu].astype(np.float64)
-    ok = np.isfinite(z) & (z > 0)
-    z, uu, vv = z[ok], uu[ok], vv[ok]
-    cam = np.stack([(uu - K[0, 2]) / K[0, 0] * z, (vv - K[1, 2]) / K[1, 1] * z, z], axis=1)
+    cam = pixel_points(depth, K, (vv * w + uu).ravel())
+    cam = cam[np.isfinite(cam[:, 2]) & (cam[:, 2] > 0)]
     return (cam - c) @ R
 
 
