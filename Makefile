@@ -75,7 +75,8 @@ weights: $(DATA)/train/index.json $(DATA)/val/index.json $(DATA)/extra/index.jso
 	$(SD) train --config shape_detector/training/configs/box_context.json --data runs/main/frustums_train_*.npz runs/ft/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/anchors/best.pt --out runs/boxctx --seed 4 --device cpu --threads 2
 	$(SD) train --config shape_detector/training/configs/box_stage2.json --data runs/main/frustums_train_*.npz runs/ft/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/boxctx/best.pt --out runs/box2 --seed 5 --device cpu --threads 2
 	$(SD) train --config shape_detector/training/configs/shape_refresh.json --data runs/main/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/box2/best.pt --out runs/shape4e --seed 7 --device cpu --threads 2
-	cp runs/shape4e/best.pt shape_detector/weights/default.pt
+	$(SD) train --config shape_detector/training/configs/seg_refresh.json --data runs/main/frustums_train_*.npz runs/ft/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/shape4e/best.pt --out runs/seg4f --seed 8 --device cpu --threads 2
+	cp runs/seg4f/weights.pt shape_detector/weights/default.pt
 	$(SD) train-classifier --data $(DATA)/train $(DATA)/extra --weights shape_detector/weights/default.pt --out runs/cls --seed 0 --workers 2 --threads 2
 	cp runs/cls/classifier.pt shape_detector/weights/classifier.pt
 

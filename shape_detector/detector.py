@@ -170,6 +170,13 @@ class ShapeDetector:
     ``free_space``: after the floor snap, move each box's side faces (and the top face of
     flat-topped classes) inwards out of space the camera sees through, never past measured
     points or the object's own; chairs are left alone (see :mod:`shape_detector.free_space`).
+    ``fit_confidence``: point fit and free-space carving take an object's own points to be
+    those whose foreground probability exceeds this (the reported ``seg_labels`` stay the
+    network's decision, > 0.5; 0.5 uses them). What leaks into a mask (a chair at a table, clutter on its
+    top) is segmented less surely than the object. Validation (200 frames, GT boxes),
+    0.5 / 0.6 / 0.7 / 0.8 / 0.9: mAP@0.5 85.2 / 85.8 / 85.7 / 85.7 / 85.4, mean 3D IoU
+    0.683 / 0.685 / 0.686 / 0.687 / 0.680, object-frame shape IoU 0.485 / 0.489 / 0.490 /
+    0.493 / 0.490; built-in proposals 80.0 / 63.8 at 0.5 and 0.8.
     ``precision``: the network's arithmetic, ``"fp32"``, ``"bf16"`` (faster on CPUs with
     AMX / AVX512-BF16 for several frustums) or ``"auto"`` (bf16 for batches of 4 or more
     frustums on a CPU with AMX); see :class:`~shape_detector.model.predictor.FrustumPredictor`.
@@ -212,6 +219,7 @@ class ShapeDetector:
         floor_snap: float = 0.25,
         point_fit: float = 0.15,
         free_space: bool = True,
+        fit_confidence: float = 0.8,
         precision: str = "fp32",
         mirror_tta: str = "given",
         snap_primitives: bool = True,
@@ -250,6 +258,9 @@ class ShapeDetector:
         if not 0.0 <= self.point_fit < 0.5:
             raise ValueError(f"point_fit is a quantile in [0, 0.5), got {point_fit}")
         self.free_space = bool(free_space)
+        self.fit_confidence = float(fit_confidence)
+        if not 0.5 <= self.fit_confidence < 1.0:
+            raise ValueError(f"fit_confidence is a probability in [0.5, 1) (0.5: the mask itself), got {fit_confidence}")
         if mirror_tta not in ("given", "always", "never"):
             raise ValueError(f"mirror_tta must be 'given', 'always' or 'never', got {mirror_tta!r}")
         self.mirror_tta = mirror_tta
@@ -414,14 +425,15 @@ class ShapeDetector:
                     primitives=list(pred.primitives),
                     pixel_index=fr.pixel_index,
                     seg_labels=np.asarray(pred.seg_prob) > 0.5,
+                    seg_prob=np.asarray(pred.seg_prob),
                     class_scores=np.asarray(pred.class_probs[: len(CLASS_TO_ID)], dtype=np.float64),
                 )
             )
         points_cam = functools.partial(pixel_points, frame.depth, frame.K)
-        objects = grow_all_to_points(objects, points_cam, self.point_fit)
+        objects = grow_all_to_points(objects, points_cam, self.point_fit, self.fit_confidence)
         objects = snap_to_floor(objects, frame.up, frame.floor_height, self.floor_snap)
         if self.free_space:  # after the floor snap: measured points near the box bottom are floor
-            objects = carve_all(objects, frame.depth, frame.K, points_cam)
+            objects = carve_all(objects, frame.depth, frame.K, points_cam, min_prob=self.fit_confidence)
         if not frame.given_boxes:  # built-in proposals overlap by design; given boxes are one per object
             objects = nms_3d(objects, self.nms_iou, decay=self.nms_decay, min_score=self.score_threshold)
         if self.snap_primitives:

@@ -201,7 +201,12 @@ def _layers_ok(
 
 
 def carve_free_space(
-    obj: Object3D, depth: np.ndarray, K: np.ndarray, points_cam: PointSource, params: CarveParams | None = None
+    obj: Object3D,
+    depth: np.ndarray,
+    K: np.ndarray,
+    points_cam: PointSource,
+    params: CarveParams | None = None,
+    min_prob: float | None = None,
 ) -> Object3D:
     """``obj`` with its side (and, for ``top_classes``, top) faces moved inwards out of
     seen-through space (in place; see the module docstring).
@@ -209,13 +214,14 @@ def carve_free_space(
     ``depth``: HxW metres (optical frame z; NaN / 0 invalid), ``K``: 3x3 intrinsics,
     ``points_cam``: flat pixel indices -> camera-frame points (see
     :func:`shape_detector.point_fit.grow_to_points`); ``obj.pixel_index`` and
-    ``obj.seg_labels`` select the object's own points. Objects with fewer than
-    ``point_fit.MIN_POINTS`` segmented points are returned unchanged.
+    ``obj.seg_labels`` select the object's own points (``min_prob``: those with a higher
+    foreground probability, :func:`~shape_detector.point_fit.segmented_points`). Objects with
+    fewer than ``point_fit.MIN_POINTS`` segmented points are returned unchanged.
     """
     p = params or CarveParams()
     if obj.class_name not in p.classes:
         return obj
-    pts = segmented_points(obj, points_cam)
+    pts = segmented_points(obj, points_cam, min_prob)
     if pts is None:
         return obj
     R, c = obj.rotation, obj.center
@@ -254,7 +260,12 @@ def carve_free_space(
 
 
 def carve_all(
-    objects: list[Object3D], depth: np.ndarray, K: np.ndarray, points_cam: PointSource, params: CarveParams | None = None
+    objects: list[Object3D],
+    depth: np.ndarray,
+    K: np.ndarray,
+    points_cam: PointSource,
+    params: CarveParams | None = None,
+    min_prob: float | None = None,
 ) -> list[Object3D]:
     """:func:`carve_free_space` on each object."""
-    return [carve_free_space(o, depth, K, points_cam, params) for o in objects]
+    return [carve_free_space(o, depth, K, points_cam, params, min_prob) for o in objects]

@@ -28,7 +28,9 @@ PointSource = Callable[[np.ndarray], np.ndarray]
 MIN_POINTS = 20
 
 
-def grow_to_points(obj: Object3D, points_cam: PointSource, quantile: float = 0.15) -> Object3D:
+def grow_to_points(
+    obj: Object3D, points_cam: PointSource, quantile: float = 0.15, min_prob: float | None = None
+) -> Object3D:
     """``obj`` with its box grown to cover its segmented points' central range (in place).
 
     ``points_cam``: the frame's camera-frame points (optical frame, metres, NaN/z <= 0
@@ -38,12 +40,13 @@ def grow_to_points(obj: Object3D, points_cam: PointSource, quantile: float = 0.1
     (per-point foreground) select the object's points. Along each box axis the box's
     [lo, hi] becomes [min(lo, q), max(hi, q')] with q, q' the ``quantile`` and
     ``1 - quantile`` quantiles of the points (:meth:`Object3D.set_extent`: the centre moves
-    accordingly and the primitives stretch with the box). Objects without enough points,
-    or already covering the range, are returned unchanged.
+    accordingly and the primitives stretch with the box). ``min_prob``: use only the points
+    whose foreground probability exceeds it (see :func:`segmented_points`). Objects without
+    enough points, or already covering the range, are returned unchanged.
     """
     if quantile >= 0.5:
         return obj
-    p = segmented_points(obj, points_cam)
+    p = segmented_points(obj, points_cam, min_prob)
     if p is None:
         return obj
     R, c0 = obj.rotation, obj.center
@@ -56,13 +59,18 @@ def grow_to_points(obj: Object3D, points_cam: PointSource, quantile: float = 0.1
     return obj
 
 
-def segmented_points(obj: Object3D, points_cam: PointSource) -> np.ndarray | None:
+def segmented_points(obj: Object3D, points_cam: PointSource, min_prob: float | None = None) -> np.ndarray | None:
     """Camera-frame points (n, 3) of ``obj``'s segmented pixels (``obj.pixel_index`` where
-    ``obj.seg_labels``), each pixel once, invalid depth dropped; None when the object has no
-    labels or fewer than ``MIN_POINTS`` valid points."""
+    ``obj.seg_labels``, or where ``obj.seg_prob > min_prob`` when both are given), each pixel
+    once, invalid depth dropped; None when the object has no labels or fewer than
+    ``MIN_POINTS`` valid points."""
     if obj.pixel_index is None or obj.seg_labels is None:
         return None
-    idx = np.asarray(obj.pixel_index, dtype=np.int64)[np.asarray(obj.seg_labels, dtype=bool)]
+    if min_prob is not None and obj.seg_prob is not None:
+        mask = np.asarray(obj.seg_prob, dtype=np.float64) > float(min_prob)
+    else:
+        mask = np.asarray(obj.seg_labels, dtype=bool)
+    idx = np.asarray(obj.pixel_index, dtype=np.int64)[mask]
     if idx.size < MIN_POINTS:
         return None
     p = np.asarray(points_cam(np.unique(idx)), dtype=np.float64)
@@ -80,8 +88,10 @@ def sorted_quantile(a: np.ndarray, q: float) -> np.ndarray:
     return a[i] + (pos - i) * (a[j] - a[i])
 
 
-def grow_all_to_points(objects: list[Object3D], points_cam: PointSource, quantile: float = 0.15) -> list[Object3D]:
+def grow_all_to_points(
+    objects: list[Object3D], points_cam: PointSource, quantile: float = 0.15, min_prob: float | None = None
+) -> list[Object3D]:
     """:func:`grow_to_points` on each object (``quantile`` <= 0 or >= 0.5: off)."""
     if quantile <= 0.0 or quantile >= 0.5:
         return objects
-    return [grow_to_points(o, points_cam, quantile) for o in objects]
+    return [grow_to_points(o, points_cam, quantile, min_prob) for o in objects]

@@ -74,6 +74,9 @@ class Object3D:
     #: network's foreground decision for each (None when not computed).
     pixel_index: np.ndarray | None = field(default=None, repr=False)
     seg_labels: np.ndarray | None = field(default=None, repr=False)
+    #: the network's foreground probability of each of those points (``seg_labels`` is
+    #: ``seg_prob > 0.5``); the geometric post-processing can ask for surer points
+    seg_prob: np.ndarray | None = field(default=None, repr=False)
     #: the network's calibrated probability of each class of ``CLASSES`` (background
     #: excluded, so it sums to 1 - P(background)); None when not computed.
     class_scores: np.ndarray | None = field(default=None, repr=False)

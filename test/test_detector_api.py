@@ -114,6 +114,18 @@ def test_mirror_tta_modes(detector):
         ShapeDetector(mirror_tta="sometimes")
 
 
+def test_objects_carry_their_foreground_probabilities_and_fit_confidence_is_checked(detector):
+    frame, *_ = _dresser_scene()
+    obj = detector.detect(frame.rgb, frame.depth, frame.K, boxes2d=[(*frame.objects[0].box2d, "dresser")], up=frame.up)[0]
+    assert obj.seg_prob.shape == obj.seg_labels.shape == obj.pixel_index.shape
+    assert np.all((obj.seg_prob >= 0) & (obj.seg_prob <= 1))
+    np.testing.assert_array_equal(obj.seg_labels, obj.seg_prob > 0.5)  # the reported mask is the network's
+    with pytest.raises(ValueError, match="fit_confidence"):
+        ShapeDetector(fit_confidence=1.0)
+    with pytest.raises(ValueError, match="fit_confidence"):
+        ShapeDetector(fit_confidence=0.3)
+
+
 def test_prepare_then_finish_is_detect_and_frames_may_interleave(detector):
     a, *_ = _dresser_scene(yaw=0.35)
     b, *_ = _dresser_scene(yaw=-0.6, pitch_deg=20.0)

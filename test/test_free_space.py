@@ -146,3 +146,31 @@ def test_max_frac_bounds_the_carving():
     # at most 10% of the 0.93 m length, in whole 2 cm steps
     assert obj.size[0] >= 0.93 - 0.1 * 0.93 - 1e-9
     assert obj.size[0] < 0.93
+
+
+def test_unsure_leaked_points_do_not_hold_a_face_out_with_min_prob():
+    """Floor pixels beyond the box's far face leak into the mask (probability 0.6): at the
+    mask's own threshold they count as the object's points and hold out its 10 cm too deep
+    +x face; with ``min_prob=0.8`` only the sure points do, and the face is carved back."""
+    frame, centre, R = _dresser()
+    half = SIZE / 2
+    obj = _object(frame, centre, R, -half, half + [0.10, 0.0, 0.0])
+    own = obj.pixel_index
+    pts = pixel_points(frame.depth, frame.K, np.arange(frame.depth.size))
+    with np.errstate(invalid="ignore"):
+        local = (pts - centre) @ R
+        beyond = (frame.instance_mask.ravel() == 0) & (local[:, 0] > half[0] + 0.15) & (local[:, 0] < half[0] + 0.6)
+    leak = np.flatnonzero(beyond)[: own.size // 10]
+    assert leak.size > 0.05 * own.size
+    prob = np.r_[np.full(own.size, 0.95), np.full(leak.size, 0.6)]
+
+    def obj_() -> Object3D:
+        return Object3D("dresser", 1.0, obj.center, obj.size, R, primitives=list(obj.primitives),
+                        pixel_index=np.r_[own, leak], seg_labels=prob > 0.5, seg_prob=prob)
+
+    points = functools.partial(pixel_points, frame.depth, frame.K)
+    held = carve_free_space(obj_(), frame.depth, frame.K, points)
+    carved = carve_free_space(obj_(), frame.depth, frame.K, points, min_prob=0.8)
+    far = lambda o: (R.T @ (o.center - centre) + o.size / 2)[0]  # noqa: E731
+    assert far(held) == pytest.approx(half[0] + 0.10)
+    assert far(carved) <= half[0] + 0.06

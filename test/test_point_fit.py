@@ -96,3 +96,33 @@ def test_few_or_background_points_leave_the_box_alone():
     assert np.allclose(grow_to_points(none, grid, 0.15).size, 0.5)
     objs = [_object(c, [0.5, 0.5, 0.5], R, idx)]
     assert np.allclose(grow_all_to_points(objs, grid, 0.0)[0].size, 0.5)  # 0 = off
+
+
+def test_min_prob_leaves_out_unsure_points_that_leaked_into_the_mask():
+    """A neighbour's points segmented as foreground, but less surely (0.6), stretch the box
+    at the default threshold and not with ``min_prob=0.8``; without ``seg_prob`` the labels
+    decide."""
+    R = np.eye(3)
+    c = np.array([0.0, 0.0, 3.0])
+    own = _grid_points([-0.5, -0.3, -0.4], [0.5, 0.3, 0.4], n=1400, seed=1)
+    leak = _grid_points([0.5, -0.3, -0.4], [1.1, 0.3, 0.4], n=600, seed=2)  # a neighbour on +x
+    grid, idx = _scene(c + np.concatenate([own, leak]))
+    prob = np.r_[np.full(len(own), 0.95), np.full(len(leak), 0.6)]
+
+    def obj() -> Object3D:
+        o = _object(c, [1.0, 0.6, 0.8], R, idx, fg=prob > 0.5)
+        o.seg_prob = prob
+        return o
+
+    grown = grow_to_points(obj(), grid, 0.15)  # 30% of the mask lies beyond +x
+    assert grown.size[0] > 1.2
+    kept = grow_to_points(obj(), grid, 0.15, min_prob=0.8)
+    np.testing.assert_allclose(kept.size, [1.0, 0.6, 0.8])
+    np.testing.assert_allclose(kept.center, c)
+    no_prob = obj()
+    no_prob.seg_prob = None
+    assert grow_to_points(no_prob, grid, 0.15, min_prob=0.8).size[0] == pytest.approx(grown.size[0])
+    # too few sure points: unchanged
+    few = obj()
+    few.seg_prob = np.r_[np.full(MIN_POINTS - 1, 0.95), np.full(len(prob) - MIN_POINTS + 1, 0.6)]
+    np.testing.assert_allclose(grow_to_points(few, grid, 0.15, min_prob=0.8).size, [1.0, 0.6, 0.8])

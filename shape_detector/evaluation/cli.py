@@ -29,7 +29,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
     p.add_argument("--min-visible", type=float, default=0.0,
                    help="GT with a smaller visible fraction is ignored (default 0)")
-    p.add_argument("--surface-samples", type=int, default=2000, help="surface samples per shape set (default 2000)")
+    p.add_argument("--surface-samples", type=int, default=5000,
+                   help="surface samples per shape set (default 5000, as issue #4 specifies)")
     p.add_argument("--score-threshold", type=float, default=0.0,
                    help="detector score threshold (default 0: keep everything, AP needs the full ranking)")
     p.add_argument("--floor-snap", type=float, default=0.25,
@@ -37,6 +38,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--point-fit", type=float, default=0.15,
                    help="grow boxes to cover their segmented points between this quantile and its complement "
                    "(0 = off; default 0.15)")
+    p.add_argument("--fit-confidence", type=float, default=0.8,
+                   help="point fit and free-space carving use the points segmented with a foreground "
+                   "probability above this (default 0.8)")
     p.add_argument("--no-free-space", action="store_true",
                    help="leave boxes where the camera sees through them (no free-space carving)")
     p.add_argument("--mirror-tta", default="given", choices=("given", "always", "never"),
@@ -96,6 +100,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         detector = ShapeDetector(weights=args.weights, device=args.device, score_threshold=args.score_threshold,
                                  floor_snap=args.floor_snap, point_fit=args.point_fit,
+                                 fit_confidence=args.fit_confidence,
                                  free_space=not args.no_free_space,
                                  mirror_tta=args.mirror_tta, snap_primitives=not args.no_snap_primitives,
                                  nms_decay=args.nms_decay, precision=args.precision,
@@ -135,6 +140,7 @@ def main(args: argparse.Namespace) -> int:
             "score_threshold": args.score_threshold,
             "floor_snap_m": args.floor_snap,
             "point_fit_quantile": args.point_fit,
+            "fit_confidence": args.fit_confidence,
             "free_space": not args.no_free_space,
             "snap_primitives": not args.no_snap_primitives,
             "mirror_tta": args.mirror_tta,

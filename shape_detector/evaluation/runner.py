@@ -109,7 +109,7 @@ def evaluate(
     iou_thresholds: Sequence[float] = (0.25, 0.5),
     classes: Sequence[str] = CLASSES,
     shape_resolution: int = 32,
-    surface_samples: int = 2000,
+    surface_samples: int = 5000,
     seed: int = 0,
     max_frames: int | None = None,
     progress: Callable[[int, float], None] | None = None,
