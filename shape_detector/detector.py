@@ -172,8 +172,8 @@ class ShapeDetector:
     points or the object's own; chairs are left alone (see :mod:`shape_detector.free_space`).
     ``fit_confidence``: point fit and free-space carving take an object's own points to be
     those whose foreground probability exceeds this (the reported ``seg_labels`` stay the
-    network's decision, > 0.5; 0.5 uses them). What leaks into a mask (a chair at a table, clutter on its
-    top) is segmented less surely than the object. Validation (200 frames, GT boxes),
+    network's decision, > 0.5; 0.5 uses them). What leaks into a mask (a chair at a table,
+    clutter on its top) is segmented less surely than the object. Validation (200 frames, GT boxes),
     0.5 / 0.6 / 0.7 / 0.8 / 0.9: mAP@0.5 85.2 / 85.8 / 85.7 / 85.7 / 85.4, mean 3D IoU
     0.683 / 0.685 / 0.686 / 0.687 / 0.680, object-frame shape IoU 0.485 / 0.489 / 0.490 /
     0.493 / 0.490; built-in proposals 80.0 / 63.8 at 0.5 and 0.8.
@@ -260,7 +260,9 @@ class ShapeDetector:
         self.free_space = bool(free_space)
         self.fit_confidence = float(fit_confidence)
         if not 0.5 <= self.fit_confidence < 1.0:
-            raise ValueError(f"fit_confidence is a probability in [0.5, 1) (0.5: the mask itself), got {fit_confidence}")
+            raise ValueError(
+                f"fit_confidence is a probability in [0.5, 1) (0.5: the mask itself), got {fit_confidence}"
+            )
         if mirror_tta not in ("given", "always", "never"):
             raise ValueError(f"mirror_tta must be 'given', 'always' or 'never', got {mirror_tta!r}")
         self.mirror_tta = mirror_tta

@@ -116,7 +116,8 @@ def test_mirror_tta_modes(detector):
 
 def test_objects_carry_their_foreground_probabilities_and_fit_confidence_is_checked(detector):
     frame, *_ = _dresser_scene()
-    obj = detector.detect(frame.rgb, frame.depth, frame.K, boxes2d=[(*frame.objects[0].box2d, "dresser")], up=frame.up)[0]
+    box = [(*frame.objects[0].box2d, "dresser")]
+    obj = detector.detect(frame.rgb, frame.depth, frame.K, boxes2d=box, up=frame.up)[0]
     assert obj.seg_prob.shape == obj.seg_labels.shape == obj.pixel_index.shape
     assert np.all((obj.seg_prob >= 0) & (obj.seg_prob <= 1))
     np.testing.assert_array_equal(obj.seg_labels, obj.seg_prob > 0.5)  # the reported mask is the network's
