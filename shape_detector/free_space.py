@@ -25,6 +25,13 @@ and carving would cut them off. Chairs are not carved at all (``classes``): the 
 through their open backs and between their rails and legs. The bottom is left to the floor snap
 (:mod:`shape_detector.floor`).
 
+A camera *below* a flat top cannot see past it, but it sees the top board's front edge, which is
+then the highest part of the object in view: when the object's 2D box does not touch the image's
+top border, the top of a ``top_classes`` box is capped at the ``top_cap_quantile`` of the
+object's own points' heights plus ``top_cap_margin`` (validation, GT boxes: bookshelves' mean 3D
+IoU 0.671 -> 0.689 and object-frame shape IoU 0.225 -> 0.238; tables and desks, seen from above,
+unchanged).
+
 Faces are carved in rounds, the face whose outer layer is seen through most first: a face
 too far out makes its neighbours' layers look seen through where they overlap its excess.
 Space hidden behind something nearer (another object, the object itself) is never seen
@@ -91,6 +98,12 @@ class CarveParams:
     top_rows: int = 2
     #: at most about this many pixels of the box's image rectangle are back-projected
     max_pixels: int = 6000
+    #: with the camera below a ``top_classes`` box's top and the 2D box's top edge more than
+    #: ``top_cap_border`` pixels inside the image, the top is capped at this quantile of the
+    #: object's points' heights plus ``top_cap_margin`` (metres); quantile 1.0 or more = off
+    top_cap_quantile: float = 0.99
+    top_cap_margin: float = 0.01
+    top_cap_border: float = 2.0
 
 
 def _layer_samples(lo: np.ndarray, hi: np.ndarray, axis: int, sign: float, depth_in: np.ndarray, grid: int) -> np.ndarray:
@@ -200,6 +213,18 @@ def _layers_ok(
     return out
 
 
+def _capped_top(obj: Object3D, camera: np.ndarray, local: np.ndarray, top: float, stop: float, p: CarveParams) -> float:
+    """The box-frame height of ``obj``'s top after the cap for a camera below it (see the
+    module docstring): ``camera`` is the camera centre and ``local`` the object's points
+    (sorted per column), both in the box frame; the top never goes below ``stop``."""
+    if p.top_cap_quantile >= 1.0 or camera[2] >= top or obj.box2d is None:
+        return top
+    if float(obj.box2d[1]) <= p.top_cap_border:  # the object's top may lie above the image
+        return top
+    cap = float(sorted_quantile(local, p.top_cap_quantile)[2]) + p.top_cap_margin
+    return max(min(top, cap), stop)
+
+
 def carve_free_space(
     obj: Object3D,
     depth: np.ndarray,
@@ -231,6 +256,8 @@ def carve_free_space(
     # a face moves in by at most max_frac of the size, and never past the object's own points
     stop_hi = np.maximum(half - p.max_frac * 2.0 * half, sorted_quantile(local, 1.0 - p.fg_quantile))
     stop_lo = np.minimum(-half + p.max_frac * 2.0 * half, sorted_quantile(local, p.fg_quantile))
+    if obj.class_name in p.top_classes:
+        hi[2] = _capped_top(obj, R.T @ (-c), local, hi[2], stop_hi[2], p)
     view = _View(c, R, half, depth, K, p)
     faces = ((0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0), (2, 1.0))[: 5 if obj.class_name in p.top_classes else 4]
     for _ in range(2 * len(faces)):  # rounds: the face whose outer layer is seen through most first

@@ -174,3 +174,52 @@ def test_unsure_leaked_points_do_not_hold_a_face_out_with_min_prob():
     far = lambda o: (R.T @ (o.center - centre) + o.size / 2)[0]  # noqa: E731
     assert far(held) == pytest.approx(half[0] + 0.10)
     assert far(carved) <= half[0] + 0.06
+
+
+BOOKSHELF = np.array([0.40, 1.00, 1.90])
+
+
+def _bookshelf(distance: float = 3.4):
+    """A 1.9 m bookshelf seen by a camera 1.3 m high: from below its top."""
+    frame, centre, R = placed_box_scene("bookshelf", BOOKSHELF, 0.25, distance, 0.35, 12.0, 1.3)
+    rows = np.nonzero((frame.instance_mask == 1).any(axis=1))[0]
+    cols = np.nonzero((frame.instance_mask == 1).any(axis=0))[0]
+    return frame, centre, R, (float(cols[0]), float(rows[0]), float(cols[-1] + 1), float(rows[-1] + 1))
+
+
+def _tall_object(frame, centre, R, box2d, extra_top: float) -> Object3D:
+    half = BOOKSHELF / 2
+    obj = _object(frame, centre, R, -half, half + [0.0, 0.0, extra_top])
+    obj.class_name = "bookshelf"
+    obj.box2d = box2d
+    return obj
+
+
+def _top(obj, centre, R) -> float:
+    return float((R.T @ (obj.center - centre) + obj.size / 2)[2])
+
+
+def test_a_top_seen_from_below_is_capped_at_the_points_when_it_is_in_the_image():
+    frame, centre, R, box2d = _bookshelf()
+    half = BOOKSHELF / 2
+    assert ((-centre) @ R)[2] < half[2]  # the camera is below the top: it cannot see past it
+    assert box2d[1] > 2  # the top edge is inside the image
+    obj = _carve(frame, _tall_object(frame, centre, R, box2d, 0.15))
+    assert half[2] - 0.01 <= _top(obj, centre, R) <= half[2] + 0.025  # the front edge's height + 1 cm
+    np.testing.assert_allclose(obj.primitives[0].size, obj.size, atol=1e-9)  # primitives stretch with it
+    # the true box keeps its top
+    obj = _carve(frame, _tall_object(frame, centre, R, box2d, 0.0))
+    assert _top(obj, centre, R) == pytest.approx(half[2], abs=0.02)
+
+
+def test_the_top_cap_needs_the_top_in_the_image_a_flat_topped_class_and_can_be_turned_off():
+    frame, centre, R, box2d = _bookshelf()
+    half = BOOKSHELF / 2
+    cut = (box2d[0], 0.0, box2d[2], box2d[3])  # as if the image's top border cut the object
+    assert _top(_carve(frame, _tall_object(frame, centre, R, cut, 0.15)), centre, R) == pytest.approx(half[2] + 0.15)
+    sofa = _tall_object(frame, centre, R, box2d, 0.15)
+    sofa.class_name = "sofa"
+    assert _top(_carve(frame, sofa), centre, R) == pytest.approx(half[2] + 0.15)
+    off = carve_free_space(_tall_object(frame, centre, R, box2d, 0.15), frame.depth, frame.K,
+                           functools.partial(pixel_points, frame.depth, frame.K), CarveParams(top_cap_quantile=1.0))
+    assert _top(off, centre, R) == pytest.approx(half[2] + 0.15)
