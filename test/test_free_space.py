@@ -182,9 +182,7 @@ BOOKSHELF = np.array([0.40, 1.00, 1.90])
 def _bookshelf(distance: float = 3.4):
     """A 1.9 m bookshelf seen by a camera 1.3 m high: from below its top."""
     frame, centre, R = placed_box_scene("bookshelf", BOOKSHELF, 0.25, distance, 0.35, 12.0, 1.3)
-    rows = np.nonzero((frame.instance_mask == 1).any(axis=1))[0]
-    cols = np.nonzero((frame.instance_mask == 1).any(axis=0))[0]
-    return frame, centre, R, (float(cols[0]), float(rows[0]), float(cols[-1] + 1), float(rows[-1] + 1))
+    return frame, centre, R, tuple(float(v) for v in frame.objects[0].box2d)
 
 
 def _tall_object(frame, centre, R, box2d, extra_top: float) -> Object3D:
