@@ -63,7 +63,8 @@ $(DATA)/test/index.json: | $(STAMP)
 # with the frustum-context PointNet added, on stage 3's data (runs/boxctx; all else frozen); the second box
 # stage (a PointNet over the frustum in the first box's own frame) added and trained alone on the same data
 # (runs/box2); the shape branch again on top of it, in the refined boxes it is now given (runs/shape4e); the
-# segmentation head refreshed (runs/seg4f, shipped as default.pt); then
+# segmentation head refreshed (runs/seg4f); the shape branch with the shape-context PointNet added
+# (runs/shape4g_ctx, shipped as default.pt); then
 # the proposal classifier
 # on the built-in-proposal candidates of the training frames and 3000 more (seed 6; runs/cls),
 # from stage 4's network (runs/shape4: the boxes and classes of stages 4 and 4b; the shipped
@@ -79,7 +80,8 @@ weights: $(DATA)/train/index.json $(DATA)/val/index.json $(DATA)/extra/index.jso
 	$(SD) train --config shape_detector/training/configs/box_stage2.json --data runs/main/frustums_train_*.npz runs/ft/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/boxctx/best.pt --out runs/box2 --seed 5 --device cpu --threads 2
 	$(SD) train --config shape_detector/training/configs/shape_refresh.json --data runs/main/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/box2/best.pt --out runs/shape4e --seed 7 --device cpu --threads 2
 	$(SD) train --config shape_detector/training/configs/seg_refresh.json --data runs/main/frustums_train_*.npz runs/ft/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/shape4e/best.pt --out runs/seg4f --seed 8 --device cpu --threads 2
-	cp runs/seg4f/weights.pt shape_detector/weights/default.pt
+	$(SD) train --config shape_detector/training/configs/shape_context.json --data runs/main/frustums_train_*.npz --val-data runs/main/frustums_val_*.npz --init runs/seg4f/weights.pt --out runs/shape4g_ctx --seed 9 --device cpu --threads 2
+	cp runs/shape4g_ctx/weights.pt shape_detector/weights/default.pt
 	$(SD) train-classifier --data $(DATA)/train $(DATA)/extra --weights runs/shape4/best.pt --out runs/cls --seed 0 --workers 2 --threads 2
 	cp runs/cls/classifier.pt shape_detector/weights/classifier.pt
 

@@ -11,6 +11,7 @@ import torch
 
 from shape_detector.evaluation.iou import box2d_iou
 from shape_detector.geometry import points_in_box, rot_z
+from shape_detector.model.config import ModelConfig
 from shape_detector.model.io import load_checkpoint, load_weights
 from shape_detector.model.primitives import coverage_loss
 from shape_detector.training import frustum_dataset as fds
@@ -198,6 +199,16 @@ def test_init_weights_fine_tunes_from_a_trained_model(ds, tmp_path):
               print_fn=lambda s: None, init_weights=tmp_path / "a" / "weights.pt")
 
 
+def test_class_path_frozen_names_the_modules_the_class_logits_never_read():
+    from shape_detector.training.train import _class_path_frozen
+
+    assert _class_path_frozen(["shape_ctx_mlp", "shape_mlp", "shape_head", "shape_anchor"])
+    assert _class_path_frozen(["box2_mlp", "box2_head"]) and _class_path_frozen(["ctx_mlp", "box_head"])
+    # the class head reads the segmentation and box PointNets, and the mask decides the box net's points
+    for trainable in (None, [], ["cls_head"], ["shape_head", "seg_mlp"], ["box_mlp"], ["seg_out"], ["tnet_head"]):
+        assert not _class_path_frozen(trainable), trainable
+
+
 def test_trainable_prefixes_freeze_the_rest(ds, tmp_path):
     """trainable=[...]: only those modules change; frozen BatchNorm statistics stay put."""
     tr, va = fds.split_by_frame(ds, 0.34, seed=0)
@@ -321,6 +332,44 @@ def test_box_context_branch_starts_as_the_init_model_and_then_learns(ds, tmp_pat
     with pytest.raises(ValueError, match="model config"):  # the branch may be added, not removed
         train(_cfg(epochs=1, model=SMALL), tr, va, tmp_path / "c", seed=4, print_fn=lambda s: None,
               init_weights=tmp_path / "b" / "weights.pt")
+
+
+def test_shape_context_branch_starts_as_the_init_model_and_moves_only_the_shape(ds, tmp_path):
+    """A model with the shape-context branch, initialised from one without, computes exactly
+    what the init did (the shape head's new inputs start at zero weights); a shape fine-tune of
+    the shape branch then changes the primitives and nothing else: boxes, classes and masks stay
+    bit-identical. The branch reads the background: moving frustum points the mask leaves out
+    changes the shape."""
+    ctx_model = dict(SMALL, shape_context_widths=[16, 32])
+    tr, va, a, oa, batch = _grown_from_trained(ds, tmp_path, ctx_model)
+    train(_cfg(epochs=1, model=ctx_model, tasks="box,shape,cls", lr=0.01,
+               trainable=["shape_ctx_mlp", "shape_mlp", "shape_head", "shape_anchor"]), tr, va, tmp_path / "b",
+          seed=4, print_fn=lambda s: None, init_weights=tmp_path / "a" / "weights.pt")
+    c, meta = load_weights(tmp_path / "b" / "weights.pt")
+    assert c.config.shape_context_widths == (16, 32)
+    # the class logits are the init's, so the class temperature is kept, not re-fitted
+    assert meta["calibration"].get("kept") and torch.equal(c.cls_temperature, a.cls_temperature)
+    sa, sc = a.state_dict(), c.state_dict()
+    changed = {k for k in sa if not torch.equal(sa[k], sc[k])}
+    assert changed and all(k.startswith(("shape_mlp", "shape_head", "shape_anchor")) for k in changed), changed
+    c.eval()
+    with torch.no_grad():
+        oc = c(batch["points"], batch["one_hot"])
+        for k in ("center", "box_size", "box_heading", "cls_logits", "seg_logits"):
+            assert torch.equal(oc[k], oa[k]), k
+        assert not torch.equal(oc["shape_raw"], oa["shape_raw"])
+        # the background moved (the GT mask held fixed): the same box from the same object
+        # points, another shape from what surrounds them
+        fg = batch["seg"] > 0
+        assert fg.any(1).all()
+        moved = batch["points"].clone()
+        moved[..., :3] = torch.where(fg.unsqueeze(-1), moved[..., :3], moved[..., :3] * 1.5 + 0.3)
+        of = c(batch["points"], batch["one_hot"], fg_override=fg)
+        om = c(moved, batch["one_hot"], fg_override=fg)
+    assert torch.equal(om["center"], of["center"]) and torch.equal(om["box_size"], of["box_size"])
+    assert not torch.allclose(om["shape_raw"], of["shape_raw"])
+    with pytest.raises(ValueError, match="shape_branch"):
+        ModelConfig.from_dict(dict(SMALL, shape_branch="shared", shape_context_widths=[8]))
 
 
 def test_second_box_stage_starts_as_the_init_model_and_trains_alone(ds, tmp_path):

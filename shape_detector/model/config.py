@@ -56,6 +56,12 @@ class ModelConfig:
       clamped to +-4), with the hard mask as a 4th channel; from its feature, the box
       feature, the class one-hot and the first box's log size it regresses a residual centre
       (box axes, in box sizes), log size and heading. Empty (default): off.
+    * ``shape_context_widths``: non-empty adds a PointNet (``shape_ctx_mlp``) over *all*
+      frustum points in the shape branch's box frame divided by the box size (as the shape
+      branch sees its object points; clamped to +-4), with the hard mask as a 4th channel;
+      its max-pooled feature joins the shape head's input. The object's points say where it
+      is; the rest of the frustum says where it is not (floor seen under a seat, wall seen
+      through a shelf). Needs ``shape_branch="canonical"``. Empty (default): off.
     """
 
     num_points: int = 512
@@ -81,6 +87,7 @@ class ModelConfig:
     shape_fc: tuple[int, ...] = (256, 128)
     shape_branch: str = "canonical"
     shape_widths: tuple[int, ...] = (64, 128, 256)
+    shape_context_widths: tuple[int, ...] = ()
     cls_fc: tuple[int, ...] = (128,)
     cls_dropout: float = 0.2
     mean_sizes: list[list[float]] = field(default_factory=_default_mean_sizes)
@@ -127,6 +134,8 @@ class ModelConfig:
             raise ValueError(f"unknown primitive_param {cfg.primitive_param!r}")
         if cfg.shape_branch not in ("canonical", "shared"):
             raise ValueError(f"shape_branch must be 'canonical' or 'shared', got {cfg.shape_branch!r}")
+        if cfg.shape_context_widths and cfg.shape_branch != "canonical":
+            raise ValueError("shape_context_widths needs shape_branch='canonical'")
         if len(cfg.mean_sizes) != cfg.num_size_clusters:
             raise ValueError("mean_sizes must have num_size_clusters rows")
         return cfg

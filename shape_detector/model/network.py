@@ -19,7 +19,9 @@ Pipeline for a batch of frustums (points in the frustum frame ``F``, see
    (b) shape head: ``M`` cuboid primitives in the canonical object frame (see
    :mod:`.primitives`), from the box feature and (``shape_branch="canonical"``) a small
    PointNet over the object points in the canonical frame of a box (``shape_box``: the GT
-   box while training, the predicted box otherwise), divided by the box size;
+   box while training, the predicted box otherwise), divided by the box size, and (with
+   ``shape_context_widths``) a PointNet over every frustum point in that frame with the
+   hard mask as a 4th channel;
    (c) classification head over [segmentation global feature, box feature] (no class
    one-hot input), ``num_classes + 1`` logits, background last; a temperature buffer
    ``cls_temperature`` (set by calibration after training) scales them at inference.
@@ -91,6 +93,11 @@ class FrustumShapeNet(nn.Module):
         if cfg.shape_branch == "canonical":
             self.shape_mlp = SharedMLP(3, cfg.shape_widths, bn)
             shape_in += int(cfg.shape_widths[-1])
+        # every frustum point in the shape box's unit-cube frame, hard mask as a 4th channel:
+        # where the object is not (its feature columns come last in the shape head's input)
+        self.shape_ctx_mlp = SharedMLP(4, cfg.shape_context_widths, bn) if cfg.shape_context_widths else None
+        if self.shape_ctx_mlp is not None:
+            shape_in += self.shape_ctx_mlp.out_channels
         self.shape_head = FCHead(shape_in, cfg.shape_fc, cfg.num_primitives * 10, bn)
         # per-class anchors of the raw primitive values (zeros until initialised from class
         # templates, see .shape_anchors); None without ``shape_anchors``
@@ -258,8 +265,13 @@ class FrustumShapeNet(nn.Module):
                 sc, sh, ss = center.detach(), heading.detach(), size.detach()
             else:
                 sc, sh, ss = (t.detach() for t in shape_box)
-            q = to_box_axes(obj - sc.unsqueeze(1), sh) / ss.clamp_min(0.02).unsqueeze(1)
+            inv = 1.0 / ss.clamp_min(0.02).unsqueeze(1)
+            q = to_box_axes(obj - sc.unsqueeze(1), sh) * inv
             shape_in = torch.cat([fo, self.shape_mlp.forward_max(q)], 1)
+            if self.shape_ctx_mlp is not None:
+                qa = (to_box_axes(xyz - sc.unsqueeze(1), sh) * inv).clamp(-4.0, 4.0)
+                qa = torch.cat([qa, fg.unsqueeze(-1).to(qa.dtype)], -1)
+                shape_in = torch.cat([shape_in, self.shape_ctx_mlp.forward_max(qa)], 1)
         cls_logits = self.cls_head(torch.cat([seg_glob, feat], 1))
         shape_raw = self.shape_head(shape_in)
         if self.shape_anchor is not None:

@@ -550,13 +550,15 @@ def _load_init(model: FrustumShapeNet, init_model: FrustumShapeNet, reinit: list
     module-name prefixes, which keep their fresh initialisation. The model configs must be
     equal, except the primitive mapping when the shape head is re-initialised or gets its
     first class anchors (``model`` has ``shape_anchors``, ``init_model`` not), and the box
-    context branch or second box stage when ``model`` adds them (both start as no-ops). Returns
+    context branch, second box stage or shape context branch when ``model`` adds them (all
+    start as no-ops). Returns
     whether the class anchors came from ``init_model``."""
     prefixes = tuple(reinit or ())
     a, b = model.config.to_dict(), init_model.config.to_dict()
     new_anchors = model.shape_anchor is not None and init_model.shape_anchor is None
     new_context = model.ctx_mlp is not None and init_model.ctx_mlp is None
     new_box2 = model.box2_mlp is not None and init_model.box2_mlp is None
+    new_shape_ctx = model.shape_ctx_mlp is not None and init_model.shape_ctx_mlp is None
     if new_anchors or any("shape_head".startswith(p) for p in prefixes):
         for k in _SHAPE_MAPPING_KEYS:
             a.pop(k), b.pop(k)
@@ -567,6 +569,8 @@ def _load_init(model: FrustumShapeNet, init_model: FrustumShapeNet, reinit: list
     if new_box2:
         for k in ("box2_widths", "box2_fc"):
             a.pop(k), b.pop(k)
+    if new_shape_ctx:
+        a.pop("shape_context_widths"), b.pop("shape_context_widths")
     if a != b:
         raise ValueError("--init: its model config differs from the training config's")
 
@@ -576,17 +580,19 @@ def _load_init(model: FrustumShapeNet, init_model: FrustumShapeNet, reinit: list
             or (new_anchors and key == "shape_anchor")
             or (new_context and key.startswith("ctx_mlp."))
             or (new_box2 and key.startswith(("box2_mlp.", "box2_head.")))
+            or (new_shape_ctx and key.startswith("shape_ctx_mlp."))
         )
 
     state = {k: v for k, v in init_model.state_dict().items() if not fresh(k)}
-    if new_context:
-        # the box head's first layer (its first weight matrix: body.0, or out without a body)
-        # gets zero weights for the new context feature, so the network starts out computing
-        # exactly what ``init_model`` did
-        key = next(k for k, v in state.items() if k.startswith("box_head.") and v.dim() == 2)
-        w = torch.zeros_like(model.state_dict()[key])
-        w[:, : state[key].shape[1]] = state[key]
-        state[key] = w
+    # a new context feature enters its head's first layer (its first weight matrix: body.0,
+    # or out without a body) as the last input columns, with zero weights, so the network
+    # starts out computing exactly what ``init_model`` did
+    for head, new in (("box_head.", new_context), ("shape_head.", new_shape_ctx)):
+        if new:
+            key = next(k for k, v in state.items() if k.startswith(head) and v.dim() == 2)
+            w = torch.zeros_like(model.state_dict()[key])
+            w[:, : state[key].shape[1]] = state[key]
+            state[key] = w
     missing, unexpected = model.load_state_dict(state, strict=False)
     if unexpected or not all(fresh(k) for k in missing):
         raise ValueError(f"--init: parameters do not match (missing {missing}, unexpected {unexpected})")
@@ -615,6 +621,18 @@ def init_shape_anchors(model: FrustumShapeNet, ds: dict[str, np.ndarray], seed: 
     model.shape_head.out.weight.zero_()
     model.shape_head.out.bias.zero_()
     return found
+
+
+#: module-name prefixes whose parameters never reach the class logits (the class head reads the
+#: segmentation and box PointNets' global features only)
+_OFF_CLASS_PATH = ("shape_mlp", "shape_ctx_mlp", "shape_head", "shape_anchor", "box_head", "ctx_mlp", "box2_mlp",
+                   "box2_head")
+
+
+def _class_path_frozen(trainable: list[str] | None) -> bool:
+    """Whether a run training only the ``trainable`` prefixes leaves the class logits as they
+    were (every prefix lies off the class path)."""
+    return bool(trainable) and all(str(p).startswith(_OFF_CLASS_PATH) for p in trainable)
 
 
 def _freeze(model: torch.nn.Module, trainable: list[str] | None) -> list[torch.nn.Module]:
@@ -830,8 +848,10 @@ def train(
                 continue
             m, wmeta = load_weights(p, device)
             vm, raw = evaluate(m, vdata, cfg, tasks, cfg.val_max_frustums, seed=seed)
-            # without the class task the class head is not trained here: keep its temperature
-            cal = calibrate(raw) if "cls" in tasks else {"temperature": float(m.cls_temperature), "kept": True}
+            # without the class task, or when nothing the class logits depend on was trained,
+            # the class head computes what it did: keep its temperature
+            recal = "cls" in tasks and not _class_path_frozen(cfg.trainable)
+            cal = calibrate(raw) if recal else {"temperature": float(m.cls_temperature), "kept": True}
             m.cls_temperature.fill_(float(cal["temperature"]))
             wmeta["calibration"] = cal
             wmeta["val"] = vm
