@@ -551,8 +551,7 @@ def _load_init(model: FrustumShapeNet, init_model: FrustumShapeNet, reinit: list
     equal, except the primitive mapping when the shape head is re-initialised or gets its
     first class anchors (``model`` has ``shape_anchors``, ``init_model`` not), and the box
     context branch, second box stage or shape context branch when ``model`` adds them (all
-    start as no-ops). Returns
-    whether the class anchors came from ``init_model``."""
+    start as no-ops). Returns whether the class anchors came from ``init_model``."""
     prefixes = tuple(reinit or ())
     a, b = model.config.to_dict(), init_model.config.to_dict()
     new_anchors = model.shape_anchor is not None and init_model.shape_anchor is None
