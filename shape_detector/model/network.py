@@ -50,7 +50,20 @@ def to_box_axes(d: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
     return torch.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], d[..., 2]], -1)
 
 
+def to_unit_box(p: torch.Tensor, center: torch.Tensor, heading: torch.Tensor, size: torch.Tensor) -> torch.Tensor:
+    """Points ``p`` (B,N,3, frame F) in the canonical frame of boxes (``center`` (B,3),
+    ``heading`` (B,), ``size`` (B,3)) divided by the box size (at least 2 cm): the box
+    becomes the unit cube ``[-0.5, 0.5]^3``."""
+    return to_box_axes(p - center.unsqueeze(1), heading) / size.clamp_min(0.02).unsqueeze(1)
+
+
 class FrustumShapeNet(nn.Module):
+    #: module-name prefixes whose parameters never reach ``cls_logits``: the class head reads
+    #: only the segmentation and box PointNets' global features (and the mask decides the box
+    #: net's points), so training only these leaves the class probabilities as they were
+    OFF_CLASS_PATH = ("shape_mlp", "shape_ctx_mlp", "shape_head", "shape_anchor", "box_head", "ctx_mlp",
+                      "box2_mlp", "box2_head")
+
     def __init__(self, config: ModelConfig | None = None) -> None:
         super().__init__()
         self.config = cfg = config or ModelConfig()
@@ -197,7 +210,7 @@ class FrustumShapeNet(nn.Module):
         the refined centre, heading and size and the raw residuals (B,7): centre in box axes
         and box sizes, log size, heading (radians)."""
         c, s, h = center.detach(), size.detach(), heading.detach()
-        q = (to_box_axes(xyz - c.unsqueeze(1), h) / s.clamp_min(0.02).unsqueeze(1)).clamp(-4.0, 4.0)
+        q = to_unit_box(xyz, c, h, s).clamp(-4.0, 4.0)
         rfeat = self.box2_mlp.forward_max(torch.cat([q, fg.unsqueeze(-1).to(q.dtype)], -1))
         r = self.box2_head(torch.cat([rfeat, feat, one_hot, torch.log(s.clamp_min(0.02))], 1))
         r = r.to(c.dtype)
@@ -265,11 +278,9 @@ class FrustumShapeNet(nn.Module):
                 sc, sh, ss = center.detach(), heading.detach(), size.detach()
             else:
                 sc, sh, ss = (t.detach() for t in shape_box)
-            inv = 1.0 / ss.clamp_min(0.02).unsqueeze(1)
-            q = to_box_axes(obj - sc.unsqueeze(1), sh) * inv
-            shape_in = torch.cat([fo, self.shape_mlp.forward_max(q)], 1)
+            shape_in = torch.cat([fo, self.shape_mlp.forward_max(to_unit_box(obj, sc, sh, ss))], 1)
             if self.shape_ctx_mlp is not None:
-                qa = (to_box_axes(xyz - sc.unsqueeze(1), sh) * inv).clamp(-4.0, 4.0)
+                qa = to_unit_box(xyz, sc, sh, ss).clamp(-4.0, 4.0)
                 qa = torch.cat([qa, fg.unsqueeze(-1).to(qa.dtype)], -1)
                 shape_in = torch.cat([shape_in, self.shape_ctx_mlp.forward_max(qa)], 1)
         cls_logits = self.cls_head(torch.cat([seg_glob, feat], 1))

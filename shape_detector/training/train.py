@@ -622,16 +622,10 @@ def init_shape_anchors(model: FrustumShapeNet, ds: dict[str, np.ndarray], seed: 
     return found
 
 
-#: module-name prefixes whose parameters never reach the class logits (the class head reads the
-#: segmentation and box PointNets' global features only)
-_OFF_CLASS_PATH = ("shape_mlp", "shape_ctx_mlp", "shape_head", "shape_anchor", "box_head", "ctx_mlp", "box2_mlp",
-                   "box2_head")
-
-
 def _class_path_frozen(trainable: list[str] | None) -> bool:
     """Whether a run training only the ``trainable`` prefixes leaves the class logits as they
     were (every prefix lies off the class path)."""
-    return bool(trainable) and all(str(p).startswith(_OFF_CLASS_PATH) for p in trainable)
+    return bool(trainable) and all(str(p).startswith(FrustumShapeNet.OFF_CLASS_PATH) for p in trainable)
 
 
 def _freeze(model: torch.nn.Module, trainable: list[str] | None) -> list[torch.nn.Module]:
