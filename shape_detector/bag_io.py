@@ -13,18 +13,18 @@ Frame preparation (:func:`prepare_frame`, shared with the node): message triple 
 ``rgb, depth (m, NaN invalid), K`` with size checks, intrinsics rescaling and a
 :class:`FrameError` that says what is wrong for input that cannot be used.
 
-Writing (:class:`OutputBag`): a rosbag2 MCAP (metadata version 8, readable by Jazzy's
-``ros2 bag``, Foxglove and RViz) holding the input topics plus ``/shape_detector/markers``
-and ``/shape_detector/detections`` (vision_msgs definitions registered with rosbags).
+Writing: :class:`~shape_detector.bags.output.OutputBag` (re-exported here), a rosbag2
+MCAP with CRC-checked chunks (metadata version 8, readable by Jazzy's ``ros2 bag``,
+Foxglove and RViz) holding the input topics plus ``/shape_detector/markers`` and
+``/shape_detector/detections`` (vision_msgs definitions registered with rosbags).
 """
 
 from __future__ import annotations
 
 import mmap
-import shutil
 import struct
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -290,6 +290,8 @@ class BagSource:
     typestore: Any = None
     messages_read: int = 0
     last_time_ns: int | None = None
+    #: damaged chunks skipped while reading (``shape_detector.bags.mcap_check.ChunkDamage``)
+    damage: Sequence[Any] = ()
 
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
         raise NotImplementedError
@@ -351,6 +353,7 @@ class _AnyReaderSource(BagSource):
 
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK, _OP_FOOTER, _OP_DATA_END = 0x03, 0x04, 0x05, 0x06, 0x02, 0x0F
+_OP_MESSAGE_INDEX = 0x07
 
 
 class _Truncated(Exception):
@@ -426,6 +429,9 @@ class _McapRecoverySource(BagSource):
         self.typestore = get_typestore(Stores.EMPTY)
         self._fallback = get_typestore(Stores.ROS2_JAZZY)
         self._registered: set[str] = set()
+        self.damage: list = []
+        self._last_chunk = -1
+        self._chunk_no = 0
         self._scan = False
         self._scan_count = 0
         # a first pass over the readable part finds the topics, their types and the count
@@ -499,6 +505,7 @@ class _McapRecoverySource(BagSource):
         if data[: len(_MCAP_MAGIC)] != _MCAP_MAGIC:
             raise _Truncated(f"{f.name}: not an MCAP file (bad magic)")
         body = memoryview(data)[len(_MCAP_MAGIC) :]
+        self._chunk_no = 0
         off, n = 0, len(body)
         while off < n:
             if off + 9 > n:
@@ -511,6 +518,10 @@ class _McapRecoverySource(BagSource):
             if op == _OP_CHUNK:
                 if len(content) < 8 * 3 + 4 + 4:
                     raise _Truncated(f"{f.name}: chunk header cut off at byte {off + 8}")
+                damage = self._chunk_damage(f, off + 8, bytes(content)) if complete else None
+                if damage is not None:  # skipped whole, its messages are reported, not replayed
+                    off = end
+                    continue
                 comp, coff = _mcap_str(content, 28)
                 (rec_len,) = struct.unpack_from("<Q", content, coff)
                 records = content[coff + 8 : coff + 8 + rec_len]
@@ -526,11 +537,33 @@ class _McapRecoverySource(BagSource):
                     raise _Truncated(f"{f.name}: cut off inside a record at byte {n + 8}")
                 if op in (_OP_FOOTER,):
                     return
+                if op == _OP_MESSAGE_INDEX and self.damage and self.damage[-1].offset == self._last_chunk:
+                    cid, nbytes = struct.unpack_from("<HI", content, 0)
+                    topic = self._channels.get(cid, (f"channel {cid}", ""))[0]
+                    lost = self.damage[-1].messages
+                    lost[topic] = lost.get(topic, 0) + nbytes // 16
                 msg = self._handle(op, content)
                 if msg is not None:
                     yield msg
             off = end
         raise _Truncated(f"{f.name}: no footer (file not finalised)")
+
+    def _chunk_damage(self, f: Path, offset: int, content: bytes) -> Any:
+        """The ChunkDamage of a complete chunk record (recorded once, while reading), or None."""
+        from .bags.mcap_check import ChunkDamage, chunk_problem, parse_chunk
+
+        self._last_chunk = offset
+        self._chunk_no += 1
+        try:
+            problem = chunk_problem(parse_chunk(content))
+        except Exception as e:  # noqa: BLE001 - an unparsable chunk header is damage too
+            problem = (f"chunk record unreadable ({type(e).__name__}: {e})", None, None)
+        if problem is None:
+            return None
+        damage = ChunkDamage(f, self._chunk_no - 1, offset, *problem)
+        if not self._scan:
+            self.damage.append(damage)
+        return damage
 
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
         wanted = set(topics) if topics is not None else None
@@ -613,6 +646,21 @@ def open_bag(path: str | Path) -> BagSource:
         if files:
             return _McapRecoverySource(path, files, f"cannot open normally ({err})")
         raise BagReadError(path, err) from e
+    files = _mcap_files(path)
+    if files:  # rosbags reads a damaged chunk as corrupt data or fails mid-way: check first
+        from .bags.mcap_check import checked_source
+
+        try:
+            checked = checked_source(path, files)
+        except OSError as e:
+            reader.close()
+            raise BagReadError(path, f"{type(e).__name__}: {e}") from e
+        except BaseException:
+            reader.close()
+            raise
+        if checked is not None:
+            reader.close()
+            return checked
     return _AnyReaderSource(path, reader)
 
 
@@ -699,7 +747,11 @@ def select_topics(
         if image is None:
             cands = [t for t in image_topics if t != depth and is_colour(t)]
             if not cands:
-                raise ValueError(f"no colour image topic found (pass --image); topics: {listing}")
+                found = ", ".join(f"{t} [encoding {enc.get(t, 'unknown')!r}]" for t in image_topics) or "none"
+                raise ValueError(
+                    f"no colour image topic with a supported encoding (image topics: {found}; supported colour "
+                    f"encodings: {', '.join(COLOR_ENCODINGS)}); topics: {listing}"
+                )
 
             def cscore(t: str) -> tuple:
                 low = t.lower()
@@ -971,95 +1023,6 @@ def convert_message(msg: Any, msgtype: str, store: Any) -> Any:
     return build(msg, msgtype)
 
 
-class OutputBag:
-    """A rosbag2 MCAP being written: the input topics copied, markers and detections
-    added. ``out_path`` must not exist (``overwrite=True`` removes an existing bag
-    directory first)."""
-
-    def __init__(self, out_path: str | Path, overwrite: bool = False, write_detections: bool = True) -> None:
-        from rosbags.rosbag2 import StoragePlugin, Writer
-
-        from msg_conversion.msgtypes import rosbags_types
-
-        self.path = Path(out_path)
-        if self.path.exists():
-            if not overwrite:
-                raise FileExistsError(f"output {str(self.path)!r} exists (use --overwrite)")
-            if self.path.is_dir():
-                if not (self.path / "metadata.yaml").exists() and any(self.path.iterdir()):
-                    raise FileExistsError(f"output {str(self.path)!r} is a non-empty directory that is not a bag")
-                shutil.rmtree(self.path)
-            else:
-                self.path.unlink()
-        self.types = rosbags_types()
-        self.store = self.types.typestore
-        self._writer = Writer(self.path, version=8, storage_plugin=StoragePlugin.MCAP)
-        self._writer.open()
-        self._conns: dict[str, Any] = {}
-        self.skipped_topics: dict[str, str] = {}
-        self.counts: dict[str, int] = {}
-        self.write_detections = bool(write_detections and self.types.has_vision_msgs)
-        self._markers = self._writer.add_connection(MARKERS_TOPIC, MARKERS_T, typestore=self.store)
-        self._dets = (
-            self._writer.add_connection(DETECTIONS_TOPIC, DET3D_T, typestore=self.store) if self.write_detections else None
-        )
-        self._closed = False
-
-    def copy(self, m: RawMessage, source: BagSource) -> None:
-        """Copy one input message (ROS 1 messages are converted to ROS 2 CDR)."""
-        if m.topic in self.skipped_topics:
-            return
-        conn = self._conns.get(m.topic)
-        if conn is None:
-            try:
-                if source.is_ros1:
-                    if m.msgtype not in self.store.types:
-                        raise KeyError(f"{m.msgtype} has no ROS 2 Jazzy definition")
-                    conn = self._writer.add_connection(m.topic, m.msgtype, typestore=self.store)
-                else:
-                    store = source.typestore if m.msgtype in source.typestore.types else self.store
-                    conn = self._writer.add_connection(m.topic, m.msgtype, typestore=store)
-            except Exception as e:  # noqa: BLE001
-                self.skipped_topics[m.topic] = f"{type(e).__name__}: {e}"
-                return
-            self._conns[m.topic] = conn
-        data = m.raw
-        if source.is_ros1:
-            try:
-                msg = source.deserialize(m.raw, m.msgtype)
-                data = self.store.serialize_cdr(convert_message(msg, m.msgtype, self.store), m.msgtype)
-            except Exception as e:  # noqa: BLE001
-                self.skipped_topics[m.topic] = f"conversion to ROS 2 failed: {type(e).__name__}: {e}"
-                return
-        self._writer.write(conn, m.log_time_ns, data)
-        self.counts[m.topic] = self.counts.get(m.topic, 0) + 1
-
-    def write_objects(self, objects: list, stamp_ns: int, frame_id: str) -> None:
-        """Markers (and detections) of one frame, at log time = the frame's stamp."""
-        from msg_conversion.markers import objects_to_markers
-
-        markers = objects_to_markers(objects, self.types, stamp_ns, frame_id)
-        self._writer.write(self._markers, int(stamp_ns), self.store.serialize_cdr(markers, MARKERS_T))
-        self.counts[MARKERS_TOPIC] = self.counts.get(MARKERS_TOPIC, 0) + 1
-        if self._dets is not None:
-            from msg_conversion.detections import objects_to_detection3d_array
-
-            dets = objects_to_detection3d_array(objects, self.types, stamp_ns, frame_id)
-            self._writer.write(self._dets, int(stamp_ns), self.store.serialize_cdr(dets, DET3D_T))
-            self.counts[DETECTIONS_TOPIC] = self.counts.get(DETECTIONS_TOPIC, 0) + 1
-
-    def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            self._writer.close()
-
-    def __enter__(self) -> "OutputBag":
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
-
 def write_rgbd_bag(
     path: str | Path,
     frames: Iterable[tuple[int, np.ndarray, np.ndarray, np.ndarray]],
@@ -1125,6 +1088,15 @@ def write_rgbd_bag(
                 conns[topic] = w.add_connection(topic, typ, typestore=store)
             w.write(conns[topic], t, store.serialize_cdr(msg, typ))
     return path
+
+
+def __getattr__(name: str) -> Any:
+    # OutputBag moved to shape_detector.bags.output, which imports this module
+    if name == "OutputBag":
+        from .bags.output import OutputBag
+
+        return OutputBag
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def read_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, Any]]:

@@ -4,7 +4,9 @@ Targets: ``synth`` (scene generator frames/s), ``network`` (batched forward ms/f
 5, 10 objects), ``proposals`` (gravity + geometric proposals ms per VGA frame),
 ``pipeline`` (whole ``ShapeDetector.detect`` on generated VGA frames, serial and as the
 node's two-thread pipeline), ``node`` (ROS node
-frames/s and stamp-to-publish latency on the sample bag), ``all``.
+frames/s and stamp-to-publish latency on the sample bag), ``all``; and ``soak`` (the node
+under ``--rate-factor`` times overload for ``--minutes``: RSS, counts, output order; not
+part of ``all``).
 """
 
 from __future__ import annotations
@@ -22,7 +24,10 @@ TARGETS = ("synth", "network", "proposals", "pipeline", "node")
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
-    p.add_argument("target", choices=TARGETS + ("all",), help="what to time")
+    p.add_argument("target", choices=TARGETS + ("all", "soak"), help="what to time")
+    p.add_argument("--minutes", type=float, default=10.0, help="soak: minutes under overload")
+    p.add_argument("--rate-factor", type=float, default=2.0,
+                   help="soak: frames offered per second as a multiple of what the node processes")
     p.add_argument("--frames", type=int, default=20, help="frames to time (synth, proposals, pipeline)")
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1, as the detector)")
     p.add_argument("--workers", type=int, default=2, help="threads the network splits a frame's frustums over (default 2, as the detector)")
@@ -200,6 +205,12 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
         from .node_bench import bench_node
 
         return bench_node(args.bag, weights=args.weights)
+    if target == "soak":
+        from .soak import print_soak, soak
+
+        res = soak(args.minutes, args.rate_factor, args.bag, node_params={"weights": args.weights} if args.weights else None)
+        print_soak(res)
+        return res
     raise ValueError(target)
 
 
@@ -211,4 +222,4 @@ def main(args: argparse.Namespace) -> int:
         results[t] = run_target(t, args)
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2, default=float))
-    return 0
+    return 0 if results.get("soak", {}).get("ok", True) else 1

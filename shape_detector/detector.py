@@ -156,14 +156,13 @@ class ShapeDetector:
     lower-scoring of two detections is suppressed, or with ``nms_decay`` > 0 kept at that
     fraction of its score (Soft-NMS; see :func:`~shape_detector.nms.nms_3d`).
     ``num_threads``: torch CPU threads for the network (default 1: a frame's batch is small,
-    and on a loaded 2-core machine torch's intra-op threads wait on each other; measured 46
-    ms for 10 frustums with 1 thread against 496 ms with 2 here; None keeps torch's setting).
+    and on a loaded 2-core machine torch's intra-op threads wait on each other; None keeps
+    torch's setting).
     The setting is process-wide (torch).
     ``workers``: split a frame's frustums over this many threads, each running single-threaded
-    ops (data parallelism without OpenMP's barrier waits): 10 frustums took 34 ms with 2
-    against 60 ms with 1 on an idle 2-core CPU, and the same (56 vs 52-59 ms) with the
-    other core busy. 1 = serial. ``floor_snap``: boxes whose bottom lies within this many
-    metres of the floor measured in the depth get their bottom put on it (furniture
+    ops (data parallelism without OpenMP's barrier waits; faster on an idle multi-core CPU,
+    no slower with another core busy). 1 = serial. ``floor_snap``: boxes whose bottom lies
+    within this many metres of the floor measured in the depth get their bottom put on it (furniture
     stands on the floor; the top is kept), 0 = off; see :mod:`shape_detector.floor`.
     ``point_fit``: grow each box to cover its segmented points between this quantile and
     its complement along each box axis (0 = off; see :mod:`shape_detector.point_fit`).
@@ -173,18 +172,17 @@ class ShapeDetector:
     ``fit_confidence``: point fit and free-space carving take an object's own points to be
     those whose foreground probability exceeds this (the reported ``seg_labels`` stay the
     network's decision, > 0.5; 0.5 uses them). What leaks into a mask (a chair at a table,
-    clutter on its top) is segmented less surely than the object. Validation (200 frames, GT boxes),
-    0.5 / 0.6 / 0.7 / 0.8 / 0.9: mAP@0.5 85.2 / 85.8 / 85.7 / 85.7 / 85.4, mean 3D IoU
-    0.683 / 0.685 / 0.686 / 0.687 / 0.680, object-frame shape IoU 0.485 / 0.489 / 0.490 /
-    0.493 / 0.490; built-in proposals 80.0 / 63.8 at 0.5 and 0.8.
+    clutter on its top) is segmented less surely than the object, so the boxes no longer grow
+    over it; the default was chosen on the validation frames
+    (docs/experiments/code-comment-numbers.md).
     ``precision``: the network's arithmetic, ``"fp32"``, ``"bf16"`` (faster on CPUs with
     AMX / AVX512-BF16 for several frustums) or ``"auto"`` (bf16 for batches of 4 or more
     frustums on a CPU with AMX); see :class:`~shape_detector.model.predictor.FrustumPredictor`.
     ``mirror_tta``: also run each frustum mirrored and merge the two predictions
     (:func:`~shape_detector.model.predictor.merge_mirrored`) -- ``"given"`` (default: only
-    for given ``boxes2d``, a few per frame), ``"always"`` or ``"never"``. On the validation
-    frames with GT boxes it raised mAP@0.5 from 70.2 to 74.8 for twice the network work;
-    with the ~20 built-in proposals per frame it gained 0.9 points for 2x the network time.
+    for given ``boxes2d``, a few per frame), ``"always"`` or ``"never"``. It doubles the
+    network work: worth it for a few given boxes, not for the 10-25 built-in
+    proposals.
     ``snap_primitives``: turn nearly box-aligned primitives to the box axes and clip them to
     the box (see :mod:`shape_detector.primitive_snap`).
     ``classifier``: the proposal classifier (:mod:`shape_detector.model.classifier`) that
@@ -200,9 +198,8 @@ class ShapeDetector:
     reaches ``refine_min_score``: they run again with their decided class as the
     one-hot, which gives the box that class's size cluster and prior (see
     :meth:`FrustumPredictor.refine <shape_detector.model.predictor.FrustumPredictor.refine>`).
-    Validation (200 frames), built-in proposals, mAP@0.25 / @0.5: 67.0 / 44.8 without
-    either; 69.5 / 47.2 with the second pass; 75.3 / 48.3 with the classifier; 77.0 /
-    54.1 with both (the defaults).
+    The classifier and the second pass each help built-in proposals, and most together
+    (the defaults).
     """
 
     def __init__(

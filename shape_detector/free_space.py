@@ -28,19 +28,16 @@ through their open backs and between their rails and legs. The bottom is left to
 A camera *below* a flat top cannot see past it, but it sees the top board's front edge, which is
 then the highest part of the object in view: when the object's 2D box does not touch the image's
 top border, the top of a ``top_classes`` box is capped at the ``top_cap_quantile`` of the
-object's own points' heights plus ``top_cap_margin`` (GT boxes: bookshelves' mean 3D IoU 0.655 ->
-0.665 on the validation frames, 0.644 -> 0.661 on the test frames; tables and desks, seen from
-above, unchanged).
+object's own points' heights plus ``top_cap_margin``. It matters for tall furniture seen from
+below (bookshelves); tables and desks are seen from above and are not affected.
 
 Faces are carved in rounds, the face whose outer layer is seen through most first: a face
 too far out makes its neighbours' layers look seen through where they overlap its excess.
 Space hidden behind something nearer (another object, the object itself) is never seen
 through, so occluded parts are never carved: only guesses the image contradicts are.
 
-Measured on the validation frames (200, GT 2D boxes): mAP@0.5 82.0 -> 83.1, mean 3D IoU
-0.666 -> 0.679; the hand-placed box of issue #4 (54 poses, no walls): median centre error
-7.4 -> 3.7 cm. Pure numpy, about 0.5 ms per carved object; boxes change through
-:meth:`Object3D.set_extent`, so primitives stretch with them.
+Its measured effect is in docs/experiments/code-comment-numbers.md. Pure numpy; boxes
+change through :meth:`Object3D.set_extent`, so primitives stretch with them.
 """
 
 from __future__ import annotations
@@ -59,7 +56,7 @@ from .types import Object3D
 #: flat-topped furniture: the top surface spans the footprint
 FLAT_TOPPED = frozenset({"table", "desk", "dresser", "night_stand", "bookshelf"})
 #: classes carved at all: not chairs, whose open backs and thin rails the depth map sees
-#: through (validation: 34 chairs better, 13 worse, share with 3D IoU >= 0.5 down 0.845 -> 0.838)
+#: through (carving them made more chairs worse at 3D IoU >= 0.5 than it made better)
 CARVED = frozenset(CLASSES) - {"chair"}
 
 

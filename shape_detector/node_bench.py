@@ -86,18 +86,38 @@ def start_node(
     if env.get("PYTHONPATH"):
         paths.append(env["PYTHONPATH"])
     env["PYTHONPATH"] = os.pathsep.join(paths)
-    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    # its own process group: stop_node can end the node and anything it started at once
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
 
 
-def stop_node(proc: subprocess.Popen, timeout: float = 10.0) -> int:
-    """SIGINT, then SIGKILL after ``timeout``; returns the exit code."""
+def _signal_group(proc: subprocess.Popen, sig: int) -> None:
+    """``sig`` to ``proc``'s process group (its own, from start_node), else to ``proc``."""
+    try:
+        if os.getpgid(proc.pid) == proc.pid:
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def stop_node(proc: subprocess.Popen, timeout: float = 10.0, sig: int = signal.SIGINT) -> int:
+    """``sig`` (SIGINT), then SIGKILL to the process group after ``timeout`` s; always reaps
+    the process (bounded: never waits more than ``timeout`` + 10 s). Returns the exit code
+    (negative: killed by that signal)."""
     if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
+        _signal_group(proc, sig)
         try:
             proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+            pass
+    # whatever the node left in its group (and the node itself if it did not stop)
+    _signal_group(proc, signal.SIGKILL)
+    try:
+        proc.wait(timeout=10.0)
+    except subprocess.TimeoutExpired:  # unkillable (D state): report instead of hanging
+        return -9
     return int(proc.returncode)
 
 
@@ -174,7 +194,10 @@ class MarkerListener:
                 break
 
     def close(self) -> None:
+        """Stop spinning, join the spin thread (bounded), destroy the node."""
         self.executor.shutdown(timeout_sec=1.0)
+        self.executor.wake()
+        self._t.join(timeout=5.0)
         self.node.destroy_node()
 
 
@@ -243,10 +266,11 @@ def bench_node(
             latency_max_ms=float(lat.max()) if lat.size else float("nan"),
         )
     finally:
-        listener.close()
-        rclpy.try_shutdown(context=ctx)
+        # the child first: whatever happens to this process' ROS teardown, it is reaped
         rc = stop_node(proc)
         result["node_exit_code"] = rc
+        listener.close()
+        rclpy.try_shutdown(context=ctx)
     if print_result:
         print(
             f"node: {result['frames_received']}/{result['frames_sent']} frames, {result['fps']:.2f} frames/s "

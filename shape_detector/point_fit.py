@@ -6,11 +6,8 @@ The segmented points are measured, so along each box axis the box is grown until
 covers the points' central range: the ``quantile`` and ``1 - quantile`` quantiles of the
 points' coordinates in the box frame. A box is only ever grown (the hidden part of an
 object lies outside its visible points), and the quantiles keep stray mis-segmented points
-(floor, a neighbour) from stretching it.
-
-Measured on the validation shards (200 frames, GT 2D boxes): mAP@0.5 56.0 -> 64.3 at
-``quantile`` 0.15 (0.02: 50.1, 0.05: 57.3, 0.10: 61.9, 0.20: 63.2); built-in proposals
-40.7 -> 42.8; mAP@0.25 unchanged (+-0.3).
+(floor, a neighbour) from stretching it. The default quantile was chosen on the validation
+frames (docs/experiments/code-comment-numbers.md).
 """
 
 from __future__ import annotations

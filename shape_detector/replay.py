@@ -32,13 +32,12 @@ from .bag_io import (
     MARKERS_TOPIC,
     BagFrameReader,
     BagReadError,
-    FrameError,
-    OutputBag,
-    RawMessage,
     TopicSelection,
     convert_message,
     open_bag,
 )
+from .bags.output_safety import SafeOutputBag
+from .bags.replay_loop import check_replay_args, count_damage, replay_loop
 from .model.config import PRECISIONS
 
 # =====================================================================================
@@ -71,10 +70,18 @@ class ReplaySummary:
     notes: Counter = field(default_factory=Counter)
     recovered: bool = False
     error: str | None = None
+    interrupted: str | None = None
+    damage: list[str] = field(default_factory=list)
+    detected: int = 0
 
     @property
     def ok(self) -> bool:
-        return self.error is None
+        return self.error is None and not self.damage
+
+    @property
+    def all_skipped(self) -> bool:
+        """Frames were read, but not one reached the detector."""
+        return self.detected == 0 and (self.frames_in > 0 or sum(self.skipped.values()) > 0)
 
     @property
     def ms_per_frame(self) -> float:
@@ -94,7 +101,10 @@ class ReplaySummary:
             "skipped": dict(self.skipped),
             "ms_per_frame": round(self.ms_per_frame, 2),
             "wall_s": round(self.wall_s, 3),
+            "detected": self.detected,
             "error": self.error,
+            "damage": list(self.damage),
+            "interrupted": self.interrupted,
         }
 
     def format(self) -> str:
@@ -108,7 +118,8 @@ class ReplaySummary:
             f"   ({self.messages_in} messages read{', recovered sequentially' if self.recovered else ''})"
         )
         if self.skipped:
-            lines.append("  skipped (empty markers written): " + ", ".join(f"{k} {v}" for k, v in sorted(self.skipped.items())))
+            reasons = ", ".join(f"{k}: {v}" for k, v in self.skipped.most_common())
+            lines.append(f"  skipped: {sum(self.skipped.values())} ({reasons})")
         per = ", ".join(f"{k} {v}" for k, v in self.objects_per_class.most_common()) or "none"
         lines.append(f"  objects: {self.objects} ({per})")
         if self.detect_ms:
@@ -120,9 +131,13 @@ class ReplaySummary:
             lines.append(f"  note ({n}x): {note}")
         for topic, why in self.skipped_topics.items():
             lines.append(f"  not copied: {topic}: {why}")
+        for d in self.damage:
+            lines.append(f"  DAMAGED (skipped): {d}")
         if self.error:
             lines.append(f"  ERROR: {self.error}")
             lines.append(f"  the {self.frames_out} frame(s) before the damage were written to {self.out_path}")
+        if self.interrupted:
+            lines.append(f"  interrupted by {self.interrupted}: {self.frames_out} frame(s) written to {self.out_path}")
         return "\n".join(lines)
 
 
@@ -199,6 +214,7 @@ def replay_bag(
     overwrite: bool = False,
     copy_input: bool = True,
     on_frame: Any = None,
+    should_stop: Any = None,
 ) -> ReplaySummary:
     """Run ``detector`` over every synchronised frame of bag ``in_path`` and write
     ``out_path`` (rosbag2 MCAP): the input topics (``copy_input``) plus markers and
@@ -209,19 +225,23 @@ def replay_bag(
     :class:`TopicSelection` or a dict with keys ``image, depth, camera_info, imu,
     detections2d`` (missing = chosen automatically). ``up``: fixed gravity-up vector
     (camera frame); else the IMU's when an imu topic is given, else estimated by the
-    detector. ``on_frame(frame, prepared_or_None, objects)`` is called per frame.
+    detector. ``depth_scale``: metres per raw depth unit (> 0; None = by encoding).
+    ``on_frame(frame, prepared_or_None, objects)`` is called per frame.
+    ``should_stop()``: polled between messages; a true value (e.g. ``'SIGTERM'``) ends
+    the replay early with ``summary.interrupted`` set to it.
 
-    Damage in the input ends the replay early with ``summary.error`` set; the output
-    bag is closed properly and holds everything before the damage. Unusable frames
-    (bad encoding, sizes, missing camera_info) get an empty MarkerArray and are counted
-    in ``summary.skipped``. Raises FileNotFoundError / ValueError / BagReadError only
-    when nothing could be read (unopenable bag, no usable topics).
+    The output is written under a temporary sibling name and renamed into place when
+    finalised (also after damage or a stop); ``overwrite`` replaces an old output only
+    then. An output that is, contains or lies inside the input is refused
+    (``UnsafeOutputError``, a ValueError). Damage in the input ends the replay early
+    with ``summary.error`` set; damaged chunks are skipped and listed in
+    ``summary.damage``. Unusable frames (bad encoding, sizes, missing camera_info) get an
+    empty MarkerArray and are counted in ``summary.skipped``. Raises FileNotFoundError /
+    ValueError / BagReadError when nothing could be read, FileExistsError, and
+    ``OutputError`` (an OSError naming the output) when the output cannot be written.
     """
     t0 = time.perf_counter()
-    if detector is None:
-        from .detector import ShapeDetector
-
-        detector = ShapeDetector()
+    check_replay_args(depth_scale, slop, queue_size)
     up_vec = _parse_up(up)
     sel: dict[str, Any] = {}
     if isinstance(topics, TopicSelection):
@@ -231,70 +251,27 @@ def replay_bag(
         unknown = set(sel) - {"image", "depth", "camera_info", "imu", "detections2d"}
         if unknown:
             raise ValueError(f"unknown topic roles {sorted(unknown)}")
+    safe = SafeOutputBag(in_path, out_path, overwrite=overwrite, write_detections=write_detections)
+    if detector is None:
+        from .detector import ShapeDetector
+
+        detector = ShapeDetector()
     summary = ReplaySummary(str(in_path), str(out_path))
-    reader = BagFrameReader(in_path, slop=slop, queue_size=queue_size, **sel)
-    summary.topics = reader.selection
-    summary.recovered = reader.source.recovered
-    bar = _Progress(reader.source.message_count, progress)
-    try:
-        out = OutputBag(out_path, overwrite=overwrite, write_detections=write_detections)
-    except Exception:
-        reader.close()
-        raise
-    source = reader.source
-    roles = reader.selection.roles()
-
-    def on_message(m: RawMessage) -> None:
-        summary.messages_in += 1
-        role = roles.get(m.topic)
-        if role == "image":
-            summary.frames_in += 1
-        elif role == "depth":
-            summary.depth_in += 1
-        if copy_input:
-            out.copy(m, source)
-        bar.update(summary.messages_in, summary.frames_out)
-
-    try:
-        try:
-            for frame in reader.frames(on_message=on_message, all_topics=copy_input):
-                summary.synced += 1
-                objects: list = []
-                prepared = None
-                try:
-                    prepared = frame.prepare(depth_scale=depth_scale, size_mismatch=size_mismatch)
-                    for note in prepared.notes:
-                        summary.notes[note] += 1
-                    if prepared.valid_depth_fraction == 0.0:
-                        summary.skipped["no valid depth"] += 1
-                    else:
-                        frame_up = up_vec if up_vec is not None else frame.up
-                        td = time.perf_counter()
-                        objects = list(detector.detect(prepared.rgb, prepared.depth, prepared.K,
-                                                       boxes2d=prepared.boxes2d, up=frame_up))
-                        summary.detect_ms.append((time.perf_counter() - td) * 1e3)
-                except FrameError as e:
-                    summary.skipped[e.kind] += 1
-                    summary.notes[f"frame skipped: {e}"] += 1
-                except Exception as e:  # noqa: BLE001 - a detector failure must not end the replay
-                    summary.skipped["detector error"] += 1
-                    summary.notes[f"detector error: {type(e).__name__}: {e}"] += 1
-                out.write_objects(objects, frame.stamp_ns, frame.frame_id)
-                summary.frames_out += 1
-                summary.objects += len(objects)
-                summary.objects_per_class.update(o.class_name for o in objects)
-                if on_frame is not None:
-                    on_frame(frame, prepared, objects)
-                bar.update(summary.messages_in, summary.frames_out)
-        except BagReadError as e:
-            summary.error = str(e)
-    finally:
-        bar.done()
-        out.close()
-        reader.close()
-        summary.copied = dict(out.counts)
-        summary.skipped_topics = dict(out.skipped_topics)
-        summary.wall_s = time.perf_counter() - t0
+    with BagFrameReader(in_path, slop=slop, queue_size=queue_size, **sel) as reader:
+        summary.topics = reader.selection
+        summary.recovered = reader.source.recovered
+        bar = _Progress(reader.source.message_count, progress)
+        with safe as out:
+            try:
+                replay_loop(reader, out, detector, summary, bar, copy_input=copy_input, up_vec=up_vec,
+                            depth_scale=depth_scale, size_mismatch=size_mismatch, on_frame=on_frame,
+                            should_stop=should_stop)
+            finally:
+                bar.done()
+            count_damage(summary, reader.source, reader.selection.image)
+            summary.copied = dict(out.counts)
+            summary.skipped_topics = dict(out.skipped_topics)
+    summary.wall_s = time.perf_counter() - t0
     return summary
 
 
@@ -375,6 +352,8 @@ def play_bag(
     try:
         source = open_bag(path)
         try:
+            for d in source.damage:
+                log(f"play: damaged chunk, not published: {d}")
             wanted = [t for t in source.topics if topics is None or t in topics]
             if topics:
                 missing = [t for t in topics if t not in source.topics]
@@ -543,40 +522,54 @@ def make_detector(
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
+    from .bags import cli_args as ca
+    from .bags.replay_cli import EXIT_STATUS_HELP
+
     p.description = (
         "Run the detector over a bag (rosbag2 MCAP/sqlite3 directory or file, ROS 1 .bag) and write "
         "a rosbag2 MCAP with the input topics plus /shape_detector/markers and /shape_detector/detections; "
         "or, with --play, publish the bag live."
     )
-    p.add_argument("bag", help="input bag: rosbag2 directory, .mcap, .db3 or ROS 1 .bag")
-    p.add_argument("-o", "--out", help="output rosbag2 directory (MCAP); required unless --play")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
+    p.epilog = EXIT_STATUS_HELP
+    p.add_argument("bag", type=ca.path_text, help="input bag: rosbag2 directory, .mcap, .db3 or ROS 1 .bag")
+    p.add_argument("-o", "--out", type=ca.path_text,
+                   help="output rosbag2 directory (MCAP); required unless --play; must not be, contain or lie "
+                        "inside the input")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing output bag (only once the new one is complete)")
     g = p.add_argument_group("topics (default: chosen automatically)")
-    g.add_argument("--image", help="colour sensor_msgs/Image topic")
-    g.add_argument("--depth", help="depth sensor_msgs/Image topic (16UC1 / 32FC1, registered to colour)")
-    g.add_argument("--camera-info", dest="camera_info", help="colour sensor_msgs/CameraInfo topic")
-    g.add_argument("--imu", help="sensor_msgs/Imu topic for gravity-up (IMU in the camera optical frame)")
-    g.add_argument("--detections2d", help="vision_msgs/Detection2DArray topic with external 2D proposals")
+    g.add_argument("--image", type=ca.topic, help="colour sensor_msgs/Image topic")
+    g.add_argument("--depth", type=ca.topic, help="depth sensor_msgs/Image topic (16UC1 / 32FC1, registered to colour)")
+    g.add_argument("--camera-info", dest="camera_info", type=ca.topic, help="colour sensor_msgs/CameraInfo topic")
+    g.add_argument("--imu", type=ca.topic,
+                   help="sensor_msgs/Imu topic for gravity-up (IMU in the camera optical frame)")
+    g.add_argument("--detections2d", type=ca.topic,
+                   help="vision_msgs/Detection2DArray topic with external 2D proposals")
     d = p.add_argument_group("detector")
-    d.add_argument("--weights", help="network weights (default: the packaged ones)")
-    d.add_argument("--device", default="cpu")
-    d.add_argument("--score-threshold", type=float, default=0.3)
-    d.add_argument("--max-objects", type=int, default=25)
+    d.add_argument("--weights", type=ca.path_text, help="network weights (default: the packaged ones)")
+    d.add_argument("--device", type=ca.device, default="cpu", help="auto, cpu, cuda, cuda:N or mps (default cpu)")
+    d.add_argument("--score-threshold", type=ca.probability, default=0.3,
+                   help="minimum object score, 0..1 (default 0.3)")
+    d.add_argument("--max-objects", type=ca.int_at_least(1), default=25,
+                   help="at most this many objects per frame, >= 1 (default 25)")
     d.add_argument("--precision", default="fp32", choices=PRECISIONS,
                    help="network arithmetic (bf16: faster on CPUs with AMX / AVX512-BF16; auto: bf16 for "
                         "4 or more frustums where the CPU has AMX)")
-    d.add_argument("--workers", type=int, default=2, help="threads the network splits a frame's frustums over (default 2)")
+    d.add_argument("--workers", type=ca.int_at_least(1), default=2,
+                   help="threads the network splits a frame's frustums over, >= 1 (default 2)")
     d.add_argument("--proposals", choices=("geometric", "external"), default=None,
                    help="2D proposal source (default: external when --detections2d is given)")
-    d.add_argument("--classifier", default=None, metavar="PATH|none",
+    d.add_argument("--classifier", type=ca.path_text, default=None, metavar="PATH|none",
                    help="proposal classifier for built-in proposals (default: the packaged one; none = off)")
     d.add_argument("--no-refine", action="store_true", help="no class-given second pass for built-in proposals")
     d.add_argument("--detector", metavar="MODULE:CALLABLE", help="use another detector factory (tests, plugins)")
     s = p.add_argument_group("frames")
-    s.add_argument("--slop", type=float, default=0.02, help="synchroniser slop, seconds (default 0.02)")
-    s.add_argument("--queue-size", type=int, default=30, help="synchroniser queue size per topic (default 30)")
-    s.add_argument("--depth-scale", type=float, default=None, help="metres per raw depth unit (default: by encoding)")
-    s.add_argument("--up", help="fixed gravity-up vector in the camera optical frame, e.g. 0,-1,0")
+    s.add_argument("--slop", type=ca.seconds, default=0.02, help="synchroniser slop, seconds >= 0 (default 0.02)")
+    s.add_argument("--queue-size", type=ca.int_at_least(1), default=30,
+                   help="synchroniser queue size per topic, >= 1 (default 30)")
+    s.add_argument("--depth-scale", type=ca.depth_scale, default=None,
+                   help="metres per raw depth unit, > 0 (default: by encoding, 16UC1 = 0.001)")
+    s.add_argument("--up", type=ca.up_vector, help="fixed gravity-up vector in the camera optical frame, e.g. 0,-1,0")
     s.add_argument("--size-mismatch", choices=("rescale", "skip"), default="rescale")
     s.add_argument("--no-detections", action="store_true", help="do not write the Detection3DArray topic")
     s.add_argument("--no-copy", action="store_true", help="write only the detector's topics, not the input")
@@ -584,26 +577,21 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     s.add_argument("--json", action="store_true", help="print the summary as JSON")
     pl = p.add_argument_group("live playback (--play)")
     pl.add_argument("--play", action="store_true", help="publish the bag's topics live instead")
-    pl.add_argument("--rate", type=float, default=1.0, help="playback rate factor (<= 0: as fast as possible)")
-    pl.add_argument("--topics", nargs="+", help="publish only these topics")
-    pl.add_argument("--remap", nargs="+", default=[], metavar="FROM:=TO", help="publish topic FROM as TO")
+    pl.add_argument("--rate", type=ca.rate, default=1.0, help="playback rate factor (<= 0: as fast as possible)")
+    pl.add_argument("--topics", nargs="+", type=ca.topic, help="publish only these topics")
+    pl.add_argument("--remap", nargs="+", type=ca.remap, default=[], metavar="FROM:=TO",
+                    help="publish topic FROM as TO")
     pl.add_argument("--restamp", action="store_true", help="map header stamps to wall-clock time")
     pl.add_argument("--loop", action="store_true", help="play again and again")
     pl.add_argument("--clock", action="store_true", help="also publish /clock")
-    pl.add_argument("--wait-subscribers", type=float, default=0.0, metavar="SEC",
-                    help="wait up to SEC seconds for subscribers before playing (all topics, or some "
+    pl.add_argument("--wait-subscribers", type=ca.seconds, default=0.0, metavar="SEC",
+                    help="wait up to SEC (>= 0) seconds for subscribers before playing (all topics, or some "
                          "and no new ones for 1 s)")
-    pl.add_argument("--delay", type=float, default=0.0, help="seconds to wait before playing")
+    pl.add_argument("--delay", type=ca.seconds, default=0.0, help="seconds (>= 0) to wait before playing")
 
 
 def _main_play(args: argparse.Namespace) -> int:
-    remap = {}
-    for r in args.remap:
-        if ":=" not in r:
-            print(f"replay --play: bad --remap {r!r} (expected FROM:=TO)", file=sys.stderr)
-            return 2
-        a, b = r.split(":=", 1)
-        remap[a] = b
+    remap = dict(args.remap)
     import rclpy
 
     rclpy.init()
@@ -634,47 +622,15 @@ def _main_play(args: argparse.Namespace) -> int:
 
 
 def main(args: argparse.Namespace) -> int:
+    """Exit status: see :mod:`shape_detector.bags.replay_cli` (0, 1, 2, 3, 130, 143)."""
     if args.play:
         return _main_play(args)
     if not args.out:
         print("shape-detector replay: -o/--out OUT is required (or use --play)", file=sys.stderr)
         return 2
-    proposals = args.proposals or ("external" if args.detections2d else "geometric")
-    if proposals == "external" and not args.detections2d:
-        print("shape-detector replay: --proposals external needs --detections2d TOPIC", file=sys.stderr)
-        return 2
-    try:
-        up = _parse_up(args.up)
-    except ValueError as e:
-        print(f"shape-detector replay: --up: {e}", file=sys.stderr)
-        return 2
-    try:
-        detector = make_detector(args.weights, args.device, args.score_threshold, args.max_objects, proposals,
-                                 args.detector, workers=args.workers,
-                                 precision=args.precision, classifier=args.classifier, refine=not args.no_refine)
-    except Exception as e:  # noqa: BLE001
-        print(f"shape-detector replay: cannot create the detector: {type(e).__name__}: {e}", file=sys.stderr)
-        return 1
-    topics = {k: getattr(args, k) for k in ("image", "depth", "camera_info", "imu", "detections2d")}
-    try:
-        summary = replay_bag(
-            args.bag, args.out, detector, topics, progress=not args.no_progress, slop=args.slop,
-            queue_size=args.queue_size, depth_scale=args.depth_scale, up=up, size_mismatch=args.size_mismatch,
-            write_detections=not args.no_detections, overwrite=args.overwrite, copy_input=not args.no_copy,
-        )
-    except (FileNotFoundError, FileExistsError, ValueError, BagReadError) as e:
-        print(f"shape-detector replay: {e}", file=sys.stderr)
-        return 1
-    if args.json:
-        import json
+    from .bags.replay_cli import run_offline
 
-        print(json.dumps(summary.as_dict(), indent=2))
-    else:
-        print(summary.format())
-    if summary.error:
-        print(f"shape-detector replay: {summary.error}", file=sys.stderr)
-        return 1
-    return 0
+    return run_offline(args, make_detector, replay_bag)
 
 
 __all__ = ["MARKERS_TOPIC", "DETECTIONS_TOPIC", "PlaySummary", "ReplaySummary", "make_detector", "play_bag", "replay_bag"]

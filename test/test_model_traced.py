@@ -1,4 +1,4 @@
-"""The traced inference graphs give the eager forward's outputs exactly, per variant."""
+"""The traced inference graphs give the eager forward's outputs (within float reordering noise), per variant."""
 
 from __future__ import annotations
 
@@ -10,6 +10,8 @@ from shape_detector.model.config import ModelConfig
 from shape_detector.model.network import FrustumShapeNet
 from shape_detector.model.predictor import FrustumPredictor
 from shape_detector.model.traced import OUTPUT_KEYS, TracedForward, inference_outputs
+
+from tolerances import ATOL, RTOL, assert_outputs_close
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +48,7 @@ def test_traced_graphs_equal_the_eager_forward_for_any_batch(model, bf16):
             assert set(got) == set(OUTPUT_KEYS)
             for k in OUTPUT_KEYS:
                 assert got[k].shape[0] == b
-                torch.testing.assert_close(got[k], want[k], rtol=0, atol=0, msg=k)
+                torch.testing.assert_close(got[k], want[k], rtol=RTOL, atol=ATOL, msg=k)
             # the second pass over the same points with the class given reuses the features
             oh2 = torch.zeros_like(oh)
             oh2[:, 5] = 1.0
@@ -54,8 +56,8 @@ def test_traced_graphs_equal_the_eager_forward_for_any_batch(model, bf16):
             got2, want2 = traced(pts, oh2, cache, bf16=bf16), eager(pts, oh2, cache, bf16=bf16)
             full = eager(pts, oh2, bf16=bf16)
             for k in OUTPUT_KEYS:
-                torch.testing.assert_close(got2[k], want2[k], rtol=0, atol=0, msg=k)
-                torch.testing.assert_close(got2[k], full[k], rtol=0, atol=0, msg=k)
+                torch.testing.assert_close(got2[k], want2[k], rtol=RTOL, atol=ATOL, msg=k)
+                torch.testing.assert_close(got2[k], full[k], rtol=RTOL, atol=ATOL, msg=k)
     assert traced.traced == 2 and eager.traced == 0  # one graph per variant (plain, cached)
     want_dtype = torch.bfloat16 if bf16 else torch.float32
     assert want["seg_local"].dtype == want_dtype  # the forward ran in the precision asked for
@@ -87,11 +89,11 @@ def test_tracing_failure_falls_back_to_eager_with_a_warning(model, monkeypatch):
         again = traced(pts, oh)  # no second attempt, no second warning
     assert not traced.enabled and traced.traced == 0
     for k in OUTPUT_KEYS:
-        torch.testing.assert_close(got[k], want[k], rtol=0, atol=0)
-        torch.testing.assert_close(again[k], want[k], rtol=0, atol=0)
+        torch.testing.assert_close(got[k], want[k], rtol=RTOL, atol=ATOL)
+        torch.testing.assert_close(again[k], want[k], rtol=RTOL, atol=ATOL)
 
 
-def test_predictor_traced_and_eager_predictions_are_identical():
+def test_predictor_traced_and_eager_predictions_agree():
     from shape_detector.frustum import Frustum
 
     rng = np.random.default_rng(1)
@@ -106,10 +108,8 @@ def test_predictor_traced_and_eager_predictions_are_identical():
     first_a = a.predict(frustums, ids, keep_features=True)
     first_b = b.predict(frustums, ids, keep_features=True)
     for pa, pb in zip(a.refine(frustums, first_a), b.refine(frustums, first_b)):
-        assert pa.class_name == pb.class_name and pa.score == pb.score
-        np.testing.assert_array_equal(pa.center, pb.center)
-        np.testing.assert_array_equal(pa.size, pb.size)
-        np.testing.assert_array_equal(pa.seg_prob, pb.seg_prob)
+        assert pa.class_name == pb.class_name and pa.score == pytest.approx(pb.score, abs=ATOL)
+        assert_outputs_close(vars(pa), vars(pb), ("center", "size", "seg_prob"))
         assert len(pa.primitives) == len(pb.primitives)
     assert a._forward.traced >= 1 and b._forward.traced == 0
 

@@ -16,11 +16,14 @@ import numpy as np
 import pytest
 
 from shape_detector.bag_io import BagReadError, write_rgbd_bag
+from shape_detector.node_params import PARAMETERS
+from shape_detector.node_stats import stats_line
 from shape_detector.replay import replay_bag
 from shape_detector.types import Object3D
 
 ROOT = Path(__file__).resolve().parents[1]
 MS = 1_000_000
+PARAMETERS_DEFAULT_WARN = PARAMETERS["warn_image_bytes"][0]
 K = np.array([[100.0, 0, 39.5], [0, 100.0, 29.5], [0, 0, 1]])
 
 
@@ -83,6 +86,7 @@ def fuzz_node(ros_context):
     time.sleep(0.2)
     yield node, det, pubs, markers, T
     ex.shutdown(timeout_sec=2)
+    th.join(timeout=5)
     node.destroy_node()
     tester.destroy_node()
 
@@ -127,6 +131,8 @@ def _good(T, stamp, w=80, h=60):
             depth_to_image(np.full((h, w), 2.0), T, "16UC1", stamp, "cam"))
 
 
+@pytest.mark.ros
+@pytest.mark.timeout(120)
 def test_malformed_messages_never_stop_the_node(fuzz_node):
     from msg_conversion import K_to_camera_info, depth_to_image, numpy_to_image
 
@@ -203,6 +209,117 @@ def test_malformed_messages_never_stop_the_node(fuzz_node):
     assert st["processed"] == st["published"] == len(markers)
 
 
+class _Log:
+    """Stands in for the node's rclpy logger: keeps every line."""
+
+    def __init__(self):
+        self.lines: list[str] = []
+
+    def warning(self, text):
+        self.lines.append(text)
+
+    error = info = warning
+
+
+@pytest.fixture
+def node_log(fuzz_node, monkeypatch):
+    log = _Log()
+    monkeypatch.setattr(fuzz_node[0], "get_logger", lambda: log)
+    return log
+
+
+@pytest.mark.ros
+@pytest.mark.timeout(60)
+def test_distinct_problems_of_one_kind_are_each_reported(fuzz_node, node_log):
+    from msg_conversion import K_to_camera_info
+
+    node, det, pubs, markers, T = fuzz_node
+    s = time.time_ns()
+    info = K_to_camera_info(K, 80, 60, T, s, "cam")
+    _, dep = _good(T, s)
+    # encodings no earlier test used: their problems are new to the node
+    first, second, again = (_image(T, 80, 60, enc, b"\0" * 80 * 60 * 2, 160, s + k * MS)
+                            for k, enc in ((1, "fuzz_enc_a"), (2, "fuzz_enc_b"), (3, "fuzz_enc_a")))
+    for img in (first, second, again):  # within one rate-limit period
+        dep.header.stamp = img.header.stamp
+        _send(fuzz_node, img, dep, info)
+    skipped = [ln for ln in node_log.lines if ln.startswith("frame skipped")]
+    # two reasons of the same kind: both told; the repeat of the first held back
+    assert len(skipped) == 2, node_log.lines
+    assert "fuzz_enc_a" in skipped[0] and "fuzz_enc_b" in skipped[1]
+
+
+@pytest.mark.ros
+@pytest.mark.timeout(60)
+def test_restamped_and_original_stamps_do_not_spoil_the_statistics(fuzz_node, node_log):
+    from msg_conversion import K_to_camera_info
+
+    node, det, pubs, markers, T = fuzz_node
+    info = K_to_camera_info(K, 80, 60, T, time.time_ns(), "cam")
+    before = node.get_stats().get("implausible_stamps", 0)
+    for k in range(6):  # a bag's original stamps (years old) between current ones
+        stamp = time.time_ns() if k % 2 else 1_600_000_000 * 10**9 + k * MS
+        _send(fuzz_node, *_good(T, stamp), info)
+    deadline = time.monotonic() + 5
+    while node.get_stats().get("implausible_stamps", 0) < before + 3 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    st = node.get_stats()
+    assert st["implausible_stamps"] == before + 3
+    assert 0 <= st["latency_p50_ms"] <= st["latency_p95_ms"] < 60_000
+    line = stats_line(st, 1.0)
+    assert "stamp->publish p50" in line and "not counted" in line
+
+
+@pytest.mark.ros
+@pytest.mark.timeout(60)
+def test_large_images_are_reported_once_per_topic(fuzz_node, node_log):
+    from rclpy.parameter import Parameter
+
+    from msg_conversion import K_to_camera_info
+
+    node, det, pubs, markers, T = fuzz_node
+    info = K_to_camera_info(K, 80, 60, T, time.time_ns(), "cam")
+    assert node.set_parameters([Parameter("warn_image_bytes", value=5000)])[0].successful
+    try:
+        for _ in range(3):
+            _send(fuzz_node, *_good(T, time.time_ns()), info)  # 14 kB colour, 9.6 kB depth
+    finally:
+        node.set_parameters([Parameter("warn_image_bytes", value=PARAMETERS_DEFAULT_WARN)])
+    big = [ln for ln in node_log.lines if "warn_image_bytes" in ln]
+    assert len(big) == 2 and any("/fz/image" in ln for ln in big) and any("/fz/depth" in ln for ln in big)
+    assert all("qos:=reliable" in ln for ln in big)
+
+
+@pytest.mark.ros
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("name, value", [
+    ("max_objects", 0), ("depth_scale", -0.001), ("score_threshold", 1.5), ("refine_min_score", -0.1),
+    ("sync_queue_size", 0), ("warn_image_bytes", -1), ("up", [0.0, 0.0, 0.0]), ("up_source", "gyro"),
+    ("size_mismatch", "crop"),
+])
+def test_parameter_changes_are_validated_with_a_reason(fuzz_node, name, value):
+    from rclpy.parameter import Parameter
+
+    node = fuzz_node[0]
+    old = node.get_parameter(name).value
+    res = node.set_parameters([Parameter(name, value=value)])[0]
+    assert not res.successful and name in res.reason, res.reason
+    assert node.get_parameter(name).value == old and node.p[name] == old
+
+
+@pytest.mark.ros
+@pytest.mark.timeout(60)
+def test_invalid_parameters_at_start_are_refused(ros_context):
+    from rclpy.parameter import Parameter
+
+    from shape_detector.node import DetectorNode
+
+    with pytest.raises(Exception) as info:
+        DetectorNode("sd_bad_start", context=ros_context, detector=MoodyDetector(),
+                     parameter_overrides=[Parameter("up_source", value="fixed"), Parameter("up", value=[0.0, 0.0, 0.0])])
+    assert "up" in str(info.value)
+
+
 # =====================================================================================
 # bags
 # =====================================================================================
@@ -271,6 +388,7 @@ def test_bad_metadata_and_empty_files(good_bag, tmp_path):
     assert _run(tmp_path / "empty.bag", tmp_path / "oe2") is None
 
 
+@pytest.mark.timeout(180)
 def test_cli_reports_damage_without_traceback(good_bag, tmp_path):
     bad = tmp_path / "bad.mcap"
     data = next(good_bag.glob("*.mcap")).read_bytes()

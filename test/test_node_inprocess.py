@@ -20,6 +20,9 @@ from msg_conversion import K_to_camera_info, depth_to_image, make_header, numpy_
 from shape_detector.node import DetectorNode  # noqa: E402
 from shape_detector.types import Object3D  # noqa: E402
 
+# a hung ROS graph fails the test with a stack dump instead of holding the run
+pytestmark = [pytest.mark.ros, pytest.mark.timeout(120)]
+
 ROOT = Path(__file__).resolve().parents[1]
 WEIGHTS = ROOT / "shape_detector" / "weights" / "default.pt"
 K = np.array([[300.0, 0, 159.5], [0, 300.0, 119.5], [0, 0, 1]])
@@ -120,6 +123,7 @@ class Harness:
     def close(self):
         self.executor.shutdown(timeout_sec=2.0)
         self.thread.join(timeout=5)
+        assert not self.thread.is_alive(), "executor thread still spinning after shutdown"
         self.node.destroy_node()
         self.test.destroy_node()
 

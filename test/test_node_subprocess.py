@@ -4,6 +4,7 @@ into it, one MarkerArray per synchronised frame with the right stamps and frame_
 
 from __future__ import annotations
 
+import signal
 import sys
 import time
 from pathlib import Path
@@ -22,6 +23,10 @@ ROOT = Path(__file__).resolve().parents[1]
 TEST_DIR = Path(__file__).resolve().parent
 WEIGHTS = ROOT / "shape_detector" / "weights" / "default.pt"
 MS = 1_000_000
+
+# a hung child or ROS graph fails the test with a stack dump instead of holding the run;
+# every child is stopped and reaped (its process group killed) in a finally
+pytestmark = [pytest.mark.ros, pytest.mark.timeout(240)]
 
 
 class FakeDetector:
@@ -81,8 +86,9 @@ def test_console_script_node_receives_bag(bag, ros_context):
         received = list(listener.received)
         time.sleep(1.2)  # one more stats period for the log
     finally:
-        listener.close()
+        # the child first: a hang in this process' ROS teardown must not leave it unreaped
         rc = stop_node(proc)
+        listener.close()
     log = out.text
     assert rc == 0, log
     assert len(received) == len(expected), log
@@ -93,8 +99,12 @@ def test_console_script_node_receives_bag(bag, ros_context):
     assert "Traceback" not in log
 
 
-def test_node_exits_cleanly_on_bad_configuration():
-    proc = start_node({}, {"up_source": "sideways", "detector_factory": "test_node_subprocess:FakeDetector"},
+@pytest.mark.parametrize("params, reason", [
+    ({"up_source": "sideways"}, "up_source must be one of"),
+    ({"depth_scale": -1.0}, "depth_scale"),
+])
+def test_node_exits_cleanly_on_bad_configuration(params, reason):
+    proc = start_node({}, {**params, "detector_factory": "test_node_subprocess:FakeDetector"},
                       extra_pythonpath=[str(TEST_DIR)])
     out = OutputCollector(proc)
     try:
@@ -102,5 +112,57 @@ def test_node_exits_cleanly_on_bad_configuration():
     finally:
         stop_node(proc)
     time.sleep(0.2)
-    assert proc.returncode == 1
-    assert "up_source must be one of" in out.text
+    assert proc.returncode == 1, out.text
+    assert reason in out.text and "Traceback" not in out.text
+
+
+def test_4000x3000_best_effort_frame_reaches_the_node_and_sigterm_stops_it(ros_context):
+    """Through the shipped shared-memory profile (the test environment's), a best-effort
+    36 MB colour + 24 MB depth frame reaches the node, which says once (for the colour
+    topic) that such images are near the transport's limit; SIGTERM then ends it cleanly."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+    from msg_conversion import K_to_camera_info, depth_to_image, numpy_to_image, rclpy_types
+
+    T = rclpy_types()
+    h, w = 3000, 4000
+    stamp = time.time_ns()
+    K = np.array([[2000.0, 0, 1999.5], [0, 2000.0, 1499.5], [0, 0, 1]])
+    rgb = numpy_to_image(np.full((h, w, 3), 90, np.uint8), "rgb8", T, stamp, "cam4k")
+    depth = depth_to_image(np.full((h, w), 2.0), T, "16UC1", stamp, "cam4k")
+    info = K_to_camera_info(K, w, h, T, stamp, "cam4k")
+    proc = start_node({"image": "/big/image", "depth": "/big/depth", "camera_info": "/big/info"},
+                      {"detector_factory": "test_node_subprocess:FakeDetector", "qos": "sensor_data",
+                       "stats_period": 1.0}, extra_pythonpath=[str(TEST_DIR)], node_name="sd_big")
+    out = OutputCollector(proc)
+    listener = MarkerListener(ros_context, "/sd_big/markers")
+    pub_node = rclpy.create_node("big_frame_publisher", context=ros_context)
+    best_effort = QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT)
+    pubs = [pub_node.create_publisher(T.CameraInfo, "/big/info", best_effort),
+            pub_node.create_publisher(T.Image, "/big/image", best_effort),
+            pub_node.create_publisher(T.Image, "/big/depth", best_effort)]
+    try:
+        assert out.wait_for("ready:", 120), out.text
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not all(p.get_subscription_count() for p in pubs):
+            time.sleep(0.05)
+        # best effort: a send may be lost (a reader not matched yet, a busy listener); a
+        # frame larger than the segment never arrives
+        sends = 0
+        while time.monotonic() < deadline and not listener.received and sends < 10:
+            for p, m in zip(pubs, (info, rgb, depth)):
+                p.publish(m)
+            sends += 1
+            listener.wait_quiet(1, timeout=3.0, quiet=3.0)
+        received = list(listener.received)
+        time.sleep(1.5)  # a stats period for the log
+        rc = stop_node(proc, timeout=20.0, sig=signal.SIGTERM)
+    finally:
+        stop_node(proc)
+        listener.close()
+        pub_node.destroy_node()
+    log = out.text
+    assert received and received[0][1] == stamp and received[0][2] == "cam4k", f"{sends} sends\n{log}"
+    # the colour image (36 MB) is over the default warn_image_bytes (32 MiB), the depth (24 MB) not
+    assert log.count("warn_image_bytes") == 1 and "/big/image: 34.3 MiB" in log, log
+    assert rc == 0 and "Traceback" not in log, log

@@ -27,6 +27,8 @@ from msg_conversion import (  # noqa: E402
 from shape_detector.geometry import heading_to_rotation  # noqa: E402
 from shape_detector.types import Cuboid, Object3D  # noqa: E402
 
+pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]
+
 TIMEOUT_S = 15.0
 
 

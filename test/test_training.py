@@ -18,6 +18,7 @@ from shape_detector.training import frustum_dataset as fds
 from shape_detector.training.train import TensorData, TrainConfig, calibration_stats, fit_temperature, train
 
 from test_model_scene import make_frame
+from tolerances import assert_outputs_close, changed_keys, outputs_differ
 
 
 
@@ -220,7 +221,7 @@ def test_trainable_prefixes_freeze_the_rest(ds, tmp_path):
     a, _ = load_weights(tmp_path / "a" / "weights.pt")
     b, _ = load_weights(tmp_path / "b" / "weights.pt")
     sa, sb = a.state_dict(), b.state_dict()
-    changed = {k for k in sa if k != "cls_temperature" and not torch.equal(sa[k], sb[k])}
+    changed = changed_keys(sa, sb, ignore=["cls_temperature"])
     assert changed and all(k.startswith(("shape_mlp", "shape_head")) for k in changed), changed
     with pytest.raises(ValueError, match="no parameter"):
         train(_cfg(epochs=1, trainable=["nothing_here"]), tr, va, tmp_path / "c", seed=4, print_fn=lambda s: None)
@@ -244,9 +245,7 @@ def test_reinit_starts_modules_fresh_and_may_change_the_primitive_mapping(ds, tm
     sa, sb = a.state_dict(), b.state_dict()
     fresh = {k for k in sa if k.startswith("shape_head") and not torch.allclose(sa[k].float(), sb[k].float())}
     assert "shape_head.out.bias" in fresh  # the exp_linear initial bias, not the init's
-    for k in sa:
-        if not k.startswith(("shape_head", "shape_mlp", "cls_temperature")):
-            assert torch.equal(sa[k], sb[k]), k
+    assert all(k.startswith(("shape_head", "shape_mlp", "cls_temperature")) for k in changed_keys(sa, sb))
     with pytest.raises(ValueError, match="model config"):  # the mapping may only change with a fresh head
         train(_cfg(epochs=1, model=dict(SMALL, primitive_param="exp_linear")), tr, va, tmp_path / "c", seed=4,
               print_fn=lambda s: None, init_weights=init)
@@ -287,12 +286,13 @@ def test_shape_anchors_start_at_the_class_templates_and_carry_over(ds, tmp_path)
           seed=5, print_fn=logs.append, init_weights=tmp_path / "b" / "weights.pt")
     assert not any("shape anchors" in s for s in logs)
     c_model, _ = load_weights(tmp_path / "c" / "weights.pt")
-    assert torch.equal(c_model.shape_anchor, b.shape_anchor)
+    assert not changed_keys({"a": c_model.shape_anchor}, {"a": b.shape_anchor})
 
 
 def _grown_from_trained(ds, tmp_path, model: dict):
     """Train a small network (run ``a``), then build one with the extra branches of ``model``
-    initialised from it, and check that before any step it computes exactly what ``a`` did.
+    initialised from it, and check that before any step it computes what ``a`` did (within float
+    reordering noise: the grown layers multiply by zero-started columns).
     Returns (train split, val split, a, a's outputs on 6 validation frustums, that batch)."""
     from shape_detector.model.network import FrustumShapeNet
     from shape_detector.training.train import _load_init
@@ -306,14 +306,13 @@ def _grown_from_trained(ds, tmp_path, model: dict):
     batch = TensorData(va, torch.device("cpu"), a.config.num_classes).batch(torch.arange(6), one_hot_mode="given")
     with torch.no_grad():
         oa, ob = a(batch["points"], batch["one_hot"]), b(batch["points"], batch["one_hot"])
-    for k in ("center", "box_size", "box_heading", "cls_logits", "shape_raw", "seg_logits"):
-        assert torch.equal(oa[k], ob[k]), k
+    assert_outputs_close(ob, oa, ("center", "box_size", "box_heading", "cls_logits", "shape_raw", "seg_logits"))
     return tr, va, a, oa, batch
 
 
 def test_box_context_branch_starts_as_the_init_model_and_then_learns(ds, tmp_path):
     """A model with the frustum-context branch, initialised from one without: before any step
-    it computes exactly what the init model did (the new inputs of the box head start at zero);
+    it computes what the init model did (the new inputs of the box head start at zero);
     a box fine-tune of ctx_mlp + box_head then changes only those."""
     ctx_model = dict(SMALL, box_context_widths=[16, 32])
     tr, va, a, _, _ = _grown_from_trained(ds, tmp_path, ctx_model)
@@ -325,7 +324,7 @@ def test_box_context_branch_starts_as_the_init_model_and_then_learns(ds, tmp_pat
     # by class probability and runs the class-given second pass only for weights with one)
     assert set(meta["tasks"]) == {"box", "shape", "cls"}
     sa, sc = a.state_dict(), c.state_dict()
-    changed = {k for k in sa if not torch.equal(sa[k], sc[k])}
+    changed = changed_keys(sa, sc)
     # only the box head moved; without the class task the class temperature is kept, not reset
     assert changed and all(k.startswith("box_head") for k in changed), changed
     assert any(not torch.all(v == 0) for k, v in sc.items() if k.startswith("ctx_mlp.") and k.endswith("weight"))
@@ -335,10 +334,10 @@ def test_box_context_branch_starts_as_the_init_model_and_then_learns(ds, tmp_pat
 
 
 def test_shape_context_branch_starts_as_the_init_model_and_moves_only_the_shape(ds, tmp_path):
-    """A model with the shape-context branch, initialised from one without, computes exactly
-    what the init did (the shape head's new inputs start at zero weights); a shape fine-tune of
+    """A model with the shape-context branch, initialised from one without, computes what
+    the init did (the shape head's new inputs start at zero weights); a shape fine-tune of
     the shape branch then changes the primitives and nothing else: boxes, classes and masks stay
-    bit-identical. The branch reads the background: moving frustum points the mask leaves out
+    unchanged. The branch reads the background: moving frustum points the mask leaves out
     changes the shape."""
     ctx_model = dict(SMALL, shape_context_widths=[16, 32])
     tr, va, a, oa, batch = _grown_from_trained(ds, tmp_path, ctx_model)
@@ -348,16 +347,16 @@ def test_shape_context_branch_starts_as_the_init_model_and_moves_only_the_shape(
     c, meta = load_weights(tmp_path / "b" / "weights.pt")
     assert c.config.shape_context_widths == (16, 32)
     # the class logits are the init's, so the class temperature is kept, not re-fitted
-    assert meta["calibration"].get("kept") and torch.equal(c.cls_temperature, a.cls_temperature)
+    assert meta["calibration"].get("kept")
+    assert not changed_keys({"t": c.cls_temperature}, {"t": a.cls_temperature})
     sa, sc = a.state_dict(), c.state_dict()
-    changed = {k for k in sa if not torch.equal(sa[k], sc[k])}
+    changed = changed_keys(sa, sc)
     assert changed and all(k.startswith(("shape_mlp", "shape_head", "shape_anchor")) for k in changed), changed
     c.eval()
     with torch.no_grad():
         oc = c(batch["points"], batch["one_hot"])
-        for k in ("center", "box_size", "box_heading", "cls_logits", "seg_logits"):
-            assert torch.equal(oc[k], oa[k]), k
-        assert not torch.equal(oc["shape_raw"], oa["shape_raw"])
+        assert_outputs_close(oc, oa, ("center", "box_size", "box_heading", "cls_logits", "seg_logits"))
+        assert outputs_differ(oc["shape_raw"], oa["shape_raw"])
         # the background moved (the GT mask held fixed): the same box from the same object
         # points, another shape from what surrounds them
         fg = batch["seg"] > 0
@@ -366,14 +365,14 @@ def test_shape_context_branch_starts_as_the_init_model_and_moves_only_the_shape(
         moved[..., :3] = torch.where(fg.unsqueeze(-1), moved[..., :3], moved[..., :3] * 1.5 + 0.3)
         of = c(batch["points"], batch["one_hot"], fg_override=fg)
         om = c(moved, batch["one_hot"], fg_override=fg)
-    assert torch.equal(om["center"], of["center"]) and torch.equal(om["box_size"], of["box_size"])
-    assert not torch.allclose(om["shape_raw"], of["shape_raw"])
+    assert_outputs_close(om, of, ("center", "box_size"))
+    assert outputs_differ(om["shape_raw"], of["shape_raw"])
     with pytest.raises(ValueError, match="shape_branch"):
         ModelConfig.from_dict(dict(SMALL, shape_branch="shared", shape_context_widths=[8]))
 
 
 def test_second_box_stage_starts_as_the_init_model_and_trains_alone(ds, tmp_path):
-    """A model with the second box stage, initialised from one without, computes exactly what
+    """A model with the second box stage, initialised from one without, computes what
     the init did (its output layer starts at zero); a box fine-tune of box2_mlp +
     box2_head moves only those, and the refined box is what the weights then predict."""
     ref_model = dict(SMALL, box2_widths=[16, 32], box2_fc=[16])
@@ -383,9 +382,9 @@ def test_second_box_stage_starts_as_the_init_model_and_trains_alone(ds, tmp_path
     c, meta = load_weights(tmp_path / "b" / "weights.pt")
     assert c.config.box2_widths == (16, 32) and set(meta["tasks"]) == {"box", "shape", "cls"}
     sa, sc = a.state_dict(), c.state_dict()
-    assert all(torch.equal(sa[k], sc[k]) for k in sa)  # everything of the init is kept as it was
+    assert not changed_keys(sa, sc)  # everything of the init is kept as it was
     c.eval()
     with torch.no_grad():
         oc = c(batch["points"], batch["one_hot"])
-    assert torch.equal(oc["center_head"], oa["center"])  # the first box is the init's
-    assert not torch.equal(oc["center"], oa["center"]) and not torch.equal(oc["box_size"], oa["box_size"])
+    assert_outputs_close({"center": oc["center_head"]}, oa, ["center"])  # the first box is the init's
+    assert outputs_differ(oc["center"], oa["center"]) and outputs_differ(oc["box_size"], oa["box_size"])

@@ -37,8 +37,7 @@ from .traced import TracedForward
 BACKGROUND = "background"
 
 #: ``precision="auto"``: batches of at least this many frustums run in bfloat16 on CPUs with
-#: AMX (measured on one thread: 1 frustum 5.9 ms in bf16 against 4.3 in fp32, 5 frustums 13.7
-#: against 15.8, 10 frustums 27.4 against 35.6), smaller ones in fp32
+#: AMX, smaller ones in fp32 (bf16 has a fixed cost that only larger batches earn back)
 AUTO_BF16_MIN_BATCH = 4
 
 
@@ -125,8 +124,7 @@ def merge_mirrored(arr: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     * otherwise the two passes disagree about the box axes (a box turned by ~90 degrees;
       sizes are not swapped to match, so it is not the same box), and the average would be
       a box ~45 degrees off both: the pass with the more confident heading bin
-      (``heading_conf``) is kept whole. Validation frames, GT boxes: 11% of the pairs;
-      mAP@0.5 74.0 -> 74.8, mean 3D IoU 0.595 -> 0.600.
+      (``heading_conf``) is kept whole.
     """
     n = arr["center"].shape[0] // 2
     a = {k: v[:n] for k, v in arr.items()}
@@ -230,10 +228,9 @@ class FrustumPredictor:
     def warm_up(self, max_batch: int = 1) -> None:
         """Trace now, on dummy frustums, the graphs a frame may need (first pass and
         feature-reusing second pass, in each precision this predictor uses, with caches of
-        either dtype), so that no camera frame pays the tracing (~0.2 s a graph); then run
-        both passes once for every batch of 1 to ``max_batch`` frustums: the first call with
-        a new batch size costs 15-30 ms more (oneDNN builds its kernels per shape, eager or
-        traced alike)."""
+        either dtype), so that no camera frame pays the tracing; then run both passes once for
+        every batch of 1 to ``max_batch`` frustums: the first call with a new batch size is
+        slower (oneDNN builds its kernels per shape, eager or traced alike)."""
         n, nc = self.num_points, self.config.num_classes
         sizes = [1] if self.bf16_min_batch is None else [max(1, self.bf16_min_batch)]
         if self.bf16_min_batch:  # auto: small batches in fp32, large ones in bfloat16
