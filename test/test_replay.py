@@ -281,6 +281,7 @@ def test_play_cli_publishes_live(bag, ros_context):
     finally:
         if proc.poll() is None:
             proc.kill()
+            proc.wait(timeout=10)
         ex.shutdown()
         node.destroy_node()
     assert proc.returncode == 0, err
@@ -321,6 +322,8 @@ def test_play_bag_ros1_in_process(tmp_path, ros_context):
             time.sleep(0.05)
     finally:
         ex.shutdown(timeout_sec=2)
+        th.join(timeout=5)  # rclpy's shutdown does not wait for a spinning thread
+        assert not th.is_alive()
         node.destroy_node()
     assert s.published == 8 and not s.skipped_topics
     assert len(imgs) == 4 and len(infos) == 4
