@@ -43,19 +43,24 @@ def _check_output_early(args: argparse.Namespace) -> int | None:
     try:
         check_output_path(args.bag, args.out)
         PartialOutput(args.out, args.overwrite).check()
-    except UnsafeOutputError as e:
+    except (OSError, ValueError) as e:  # UnsafeOutputError and OutputError included
+        return _exit_for(e, f"cannot write output {args.out!r}: ")
+    return None
+
+
+def _exit_for(e: Exception, os_prefix: str = "") -> int:
+    """Print one line for an expected error and return its exit status (no traceback)."""
+    from ..bag_io import BagReadError
+
+    if isinstance(e, UnsafeOutputError):
         _err(f"{e}; choose another -o/--out")
         return EXIT_USAGE
-    except OutputError as e:
+    if isinstance(e, (OutputError, FileNotFoundError, FileExistsError, ValueError, BagReadError)):
         _err(str(e))
-        return EXIT_ERROR
-    except FileExistsError as e:
-        _err(str(e))
-        return EXIT_ERROR
-    except OSError as e:
-        _err(f"cannot write output {args.out!r}: {e.strerror or e}")
-        return EXIT_ERROR
-    return None
+    else:
+        err = e if isinstance(e, OSError) else OSError(str(e))
+        _err(os_prefix + f"{err.strerror or err}" + (f": {err.filename!r}" if err.filename and not os_prefix else ""))
+    return EXIT_ERROR
 
 
 def _exit_status(summary: Any) -> int:
@@ -112,18 +117,8 @@ def _run(args: argparse.Namespace, make_detector: Any, replay_bag: Any) -> int:
                 size_mismatch=args.size_mismatch, write_detections=not args.no_detections,
                 overwrite=args.overwrite, copy_input=not args.no_copy, should_stop=stop,
             )
-        except UnsafeOutputError as e:
-            _err(str(e))
-            return EXIT_USAGE
-        except OutputError as e:
-            _err(str(e))
-            return EXIT_ERROR
-        except (FileNotFoundError, FileExistsError, ValueError, BagReadError) as e:
-            _err(str(e))
-            return EXIT_ERROR
-        except OSError as e:
-            _err(f"{e.strerror or e}" + (f": {e.filename!r}" if e.filename else ""))
-            return EXIT_ERROR
+        except (OSError, ValueError, BagReadError) as e:
+            return _exit_for(e)
     _print_summary(summary, args.json)
     return _exit_status(summary)
 
