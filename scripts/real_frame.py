@@ -17,7 +17,7 @@ import numpy as np
 
 from shape_detector import ShapeDetector
 from shape_detector.datasets.sunrgbd import load_frame
-from shape_detector.evaluation.iou import box3d_iou
+from shape_detector.box_iou import box3d_iou
 
 
 def _iou(o, g) -> float:

@@ -20,7 +20,7 @@ import shape_detector.detector as detector_module
 from shape_detector import ShapeDetector
 from shape_detector.classes import CLASSES
 from shape_detector.evaluation.ap import evaluate_detections
-from shape_detector.nms import nms_3d
+from shape_detector.postprocess.nms import nms_3d
 from shape_detector.synth.dataset import iter_frames
 
 

@@ -35,6 +35,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--precision", default="fp32", choices=PRECISIONS,
                    help="network arithmetic (bf16: faster on CPUs with AMX / AVX512-BF16; auto: bf16 for 4 or "
                         "more frustums where the CPU has AMX)")
+    p.add_argument("--backend", default="auto", choices=("auto", "onnxruntime", "torch"),
+                   help="network, pipeline: inference runtime (auto: onnxruntime when installed)")
     p.add_argument("--weights", default=None, help="weights for network/pipeline/node (default: packaged)")
     p.add_argument("--no-classifier", action="store_true", help="pipeline: without the proposal classifier")
     p.add_argument("--no-refine", action="store_true", help="pipeline: without the class-given second pass")
@@ -59,6 +61,7 @@ def bench_pipeline(
     pipeline_split: str = "auto",
     trace: bool = True,
     free_space: bool = True,
+    backend: str = "auto",
 ) -> dict:
     """Median / p95 ms per VGA frame of ``ShapeDetector.detect`` with GT boxes and with built-in
     proposals, then the built-in throughput with the node's two-thread pipeline."""
@@ -68,6 +71,7 @@ def bench_pipeline(
     det = ShapeDetector(
         weights=weights, score_threshold=0.0, num_threads=threads, workers=workers, precision=precision,
         max_objects=max_objects, classifier=classifier, refine=refine, trace=trace, free_space=free_space,
+        backend=backend,
     )
     scenes = [generate_frame(10_000 + i) for i in range(frames)]
     det.warm_up()  # as the node does at start: the network's graphs are traced
@@ -188,7 +192,7 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
 
         return bench_network(
             weights=args.weights, threads=args.threads, workers=args.workers, precision=args.precision,
-            trace=not args.no_trace,
+            trace=not args.no_trace, backend=args.backend,
         )
     if target == "proposals":
         from .proposals.bench import bench_proposals
@@ -199,7 +203,7 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
             frames=args.frames, weights=args.weights, threads=args.threads, workers=args.workers,
             precision=args.precision, max_objects=args.max_objects, classifier=not args.no_classifier,
             refine=not args.no_refine, pipeline_split=args.pipeline_split, trace=not args.no_trace,
-            free_space=not args.no_free_space,
+            free_space=not args.no_free_space, backend=args.backend,
         )
     if target == "node":
         from .node_bench import bench_node

@@ -20,8 +20,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "train": ("shape_detector.training.cli", "train the frustum network on generated data"),
     "train-classifier": ("shape_detector.training.classifier_cli",
                          "train the proposal classifier on the network's built-in-proposal candidates"),
+    "weights-info": ("shape_detector.training.weights_info", "print a weights file's format, provenance and metrics"),
     "evaluate": ("shape_detector.evaluation.cli", "evaluate weights on a held-out generated set"),
     "bench": ("shape_detector.bench", "benchmarks that print numbers (synth, network, proposals, node)"),
+    "config": ("shape_detector.config_docs", "print the settings as a ROS 2 parameters file (--preset) or table"),
     "config-path": ("shape_detector.cli", "print the path of a packaged config file"),
 }
 

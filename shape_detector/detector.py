@@ -8,7 +8,7 @@ All outputs are in the camera optical frame (x right, y down, z forward), metres
 
 from __future__ import annotations
 
-import functools
+import inspect
 import time
 import warnings
 from collections.abc import Sequence
@@ -19,14 +19,12 @@ from typing import Any
 import numpy as np
 
 from .classes import CLASS_TO_ID
-from .frustum import Frustum, extract_frustum, pixel_points, valid_depth
+from .detector_config import DetectorConfig, make_config, preset
+from .frustum import Frustum, extract_frustum, valid_depth
 from .geometry import upright_rotation
 from .inputs import normalize_inputs
-from .floor import snap_to_floor
-from .nms import nms_3d
-from .free_space import carve_all
-from .point_fit import grow_all_to_points
-from .primitive_snap import snap_primitives
+from .postprocess import Hook, PostContext, build_pipeline
+from .proposal_source import make_proposer
 from .types import Object3D
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "default.pt"
@@ -105,10 +103,10 @@ def classifier_option(text: str | None) -> str | bool | None:
     return False if text == "none" else text
 
 
-def _load_classifier(spec: str | Path | bool, precision: str = "fp32", trace: bool = True):
-    """The proposal classifier for ``ShapeDetector(classifier=spec)`` (a
-    :class:`~shape_detector.model.classifier.ClassifierPredictor` with that ``precision`` and
-    ``trace``), or None."""
+def _load_classifier(spec: str | Path | bool, cfg: DetectorConfig):
+    """The proposal classifier for ``spec`` (True: the packaged one; False: none; a path)
+    as a :class:`~shape_detector.model.classifier.ClassifierPredictor` with the config's
+    precision, tracing and backend, or None."""
     if spec is False or spec is None:
         return None
     path = DEFAULT_CLASSIFIER if spec is True else Path(spec)
@@ -119,7 +117,58 @@ def _load_classifier(spec: str | Path | bool, precision: str = "fp32", trace: bo
         raise FileNotFoundError(f"proposal classifier {path} not found")
     from .model.classifier import ClassifierPredictor, load_classifier
 
-    return ClassifierPredictor(load_classifier(path)[0], precision=precision, trace=trace)
+    return ClassifierPredictor(load_classifier(path)[0], precision=cfg.precision, trace=cfg.trace,
+                               **_backend_kw(ClassifierPredictor, cfg))
+
+
+def _classifier_spec(text: str) -> str | bool:
+    """The config's classifier text as :func:`_load_classifier`'s spec."""
+    option = classifier_option(text)
+    return True if option is None else option
+
+
+def _backend_kw(cls: Any, cfg: DetectorConfig) -> dict[str, Any]:
+    """``backend=`` for runtimes that offer a choice (custom predictors may not)."""
+    return {"backend": cfg.backend} if "backend" in inspect.signature(cls).parameters else {}
+
+
+def _preset(name: str) -> DetectorConfig:
+    return preset(name)
+
+
+def _legacy(overrides: dict[str, Any]) -> dict[str, Any]:
+    """Keyword arguments in the forms earlier releases took, as config values: paths for
+    ``weights``/``classifier``, booleans for ``classifier``, ``proposals="none"``,
+    ``num_threads=None``."""
+    out = dict(overrides)
+    if "proposals" in out:
+        value = out.pop("proposals")
+        out["proposal_source"] = "external" if value == "none" else value
+    if "weights" in out:
+        out["weights"] = "" if out["weights"] is None else str(out["weights"])
+    if "classifier" in out:
+        c = out["classifier"]
+        out["classifier"] = "" if c is True or c is None else "none" if c is False else str(c)
+    if out.get("num_threads", 0) is None:
+        out["num_threads"] = 0
+    return out
+
+
+def _to_object(box: tuple[float, float, float, float], fr: Frustum, pred: Any) -> Object3D:
+    """A network prediction for one frustum as an :class:`Object3D` (camera frame)."""
+    return Object3D(
+        class_name=pred.class_name,
+        score=float(pred.score),
+        center=pred.center,
+        size=pred.size,
+        rotation=pred.rotation,
+        box2d=box,
+        primitives=list(pred.primitives),
+        pixel_index=fr.pixel_index,
+        seg_labels=np.asarray(pred.seg_prob) > 0.5,
+        seg_prob=np.asarray(pred.seg_prob),
+        class_scores=np.asarray(pred.class_probs[: len(CLASS_TO_ID)], dtype=np.float64),
+    )
 
 
 def reclassify(classifier: Any, frame: PreparedFrame, preds: list) -> list:
@@ -148,143 +197,68 @@ def reclassify(classifier: Any, frame: PreparedFrame, preds: list) -> list:
 class ShapeDetector:
     """Detect furniture with amodal 3D boxes and cuboid primitives in one RGB-D frame.
 
-    ``weights``: a checkpoint written by ``shape-detector train`` (default: the packaged
-    weights). ``device``: 'cpu', 'cuda' or 'auto'. ``proposals``: 'geometric' (built-in,
-    class-agnostic 3D-geometry proposals) or 'none' (then ``detect`` needs ``boxes2d``).
-    ``score_threshold`` drops low-confidence objects; ``max_objects`` caps frustums per
-    frame (highest-score proposals first); ``nms_iou`` is the 3D IoU above which the
-    lower-scoring of two detections is suppressed, or with ``nms_decay`` > 0 kept at that
-    fraction of its score (Soft-NMS; see :func:`~shape_detector.nms.nms_3d`).
-    ``num_threads``: torch CPU threads for the network (default 1: a frame's batch is small,
-    and on a loaded 2-core machine torch's intra-op threads wait on each other; None keeps
-    torch's setting).
-    The setting is process-wide (torch).
-    ``workers``: split a frame's frustums over this many threads, each running single-threaded
-    ops (data parallelism without OpenMP's barrier waits; faster on an idle multi-core CPU,
-    no slower with another core busy). 1 = serial. ``floor_snap``: boxes whose bottom lies
-    within this many metres of the floor measured in the depth get their bottom put on it (furniture
-    stands on the floor; the top is kept), 0 = off; see :mod:`shape_detector.floor`.
-    ``point_fit``: grow each box to cover its segmented points between this quantile and
-    its complement along each box axis (0 = off; see :mod:`shape_detector.point_fit`).
-    ``free_space``: after the floor snap, move each box's side faces (and the top face of
-    flat-topped classes) inwards out of space the camera sees through, never past measured
-    points or the object's own; chairs are left alone (see :mod:`shape_detector.free_space`).
-    ``fit_confidence``: point fit and free-space carving take an object's own points to be
-    those whose foreground probability exceeds this (the reported ``seg_labels`` stay the
-    network's decision, > 0.5; 0.5 uses them). What leaks into a mask (a chair at a table,
-    clutter on its top) is segmented less surely than the object, so the boxes no longer grow
-    over it; the default was chosen on the validation frames
-    (docs/experiments/code-comment-numbers.md).
-    ``precision``: the network's arithmetic, ``"fp32"``, ``"bf16"`` (faster on CPUs with
-    AMX / AVX512-BF16 for several frustums) or ``"auto"`` (bf16 for batches of 4 or more
-    frustums on a CPU with AMX); see :class:`~shape_detector.model.predictor.FrustumPredictor`.
-    ``mirror_tta``: also run each frustum mirrored and merge the two predictions
-    (:func:`~shape_detector.model.predictor.merge_mirrored`) -- ``"given"`` (default: only
-    for given ``boxes2d``, a few per frame), ``"always"`` or ``"never"``. It doubles the
-    network work: worth it for a few given boxes, not for the 10-25 built-in
-    proposals.
-    ``snap_primitives``: turn nearly box-aligned primitives to the box axes and clip them to
-    the box (see :mod:`shape_detector.primitive_snap`).
-    ``classifier``: the proposal classifier (:mod:`shape_detector.model.classifier`) that
-    re-decides the class and score of built-in proposals after the first pass, from the
-    frustum, its height above the measured floor, the 2D box and the first pass's output:
-    True = the packaged ``weights/classifier.pt`` (skipped with a warning if missing),
-    False = off (the network's class head decides), or a path.
-    ``trace``: run the network through frozen TorchScript graphs (CPU; same outputs, less
-    per-op overhead, and the GIL is free while they run, so the node's two pipeline threads
-    and ``workers`` really overlap; see :mod:`shape_detector.model.traced`); False = eager.
-    ``refine``: a class-given second pass for class-agnostic frustums (built-in proposals,
-    or given boxes without a class) whose score (the classifier's, else the first pass's)
-    reaches ``refine_min_score``: they run again with their decided class as the
-    one-hot, which gives the box that class's size cluster and prior (see
-    :meth:`FrustumPredictor.refine <shape_detector.model.predictor.FrustumPredictor.refine>`).
-    The classifier and the second pass each help built-in proposals, and most together
-    (the defaults).
+    Settings come from one :class:`~shape_detector.detector_config.DetectorConfig`:
+    ``ShapeDetector()`` runs the ``realtime`` preset (what the node runs),
+    ``ShapeDetector(preset="accurate")`` the offline one, and keyword arguments change single
+    settings (``ShapeDetector(score_threshold=0.5)``); ``docs/parameters.md`` lists them all.
+    Invalid values raise ValueError with the reason. :meth:`configure` changes settings of a
+    built detector that need no reload (thresholds, post-processing).
     """
 
-    def __init__(
-        self,
-        weights: str | Path | None = None,
-        device: str = "cpu",
-        score_threshold: float = 0.3,
-        max_objects: int = 25,
-        proposals: str = "geometric",
-        nms_iou: float = 0.25,
-        nms_decay: float = 0.1,
-        num_threads: int | None = 1,
-        workers: int = 2,
-        floor_snap: float = 0.25,
-        point_fit: float = 0.15,
-        free_space: bool = True,
-        fit_confidence: float = 0.8,
-        precision: str = "fp32",
-        mirror_tta: str = "given",
-        snap_primitives: bool = True,
-        refine: bool = True,
-        refine_min_score: float = 0.3,
-        classifier: str | Path | bool = True,
-        trace: bool = True,
-    ) -> None:
+    def __init__(self, config: DetectorConfig | None = None, *, preset: str | None = None, **overrides: Any) -> None:
+        if config is not None and preset is not None:
+            raise ValueError("pass a config or a preset, not both")
+        base = config if config is not None else _preset(preset or "realtime")
+        self.config = make_config(base, **_legacy(overrides))
+        cfg = self.config
         from .model.predictor import FrustumPredictor
 
-        path = Path(weights) if weights is not None else DEFAULT_WEIGHTS
+        path = Path(cfg.weights) if cfg.weights else DEFAULT_WEIGHTS
         if not path.is_file():
             raise FileNotFoundError(
-                f"weights file {path} not found (train some with `shape-detector train`, "
-                "or pass weights=...)"
+                f"weights file {path} not found (train some with `shape-detector train`, or pass weights=...)"
             )
         self.weights = path
-        self.predictor = FrustumPredictor(
-            path, device=device, num_threads=num_threads, workers=workers, precision=precision, trace=trace
-        )
+        self.predictor = FrustumPredictor(path, device=cfg.device, num_threads=cfg.num_threads or None,
+                                          workers=cfg.workers, precision=cfg.precision, trace=cfg.trace,
+                                          **_backend_kw(FrustumPredictor, cfg))
         self.num_points = int(self.predictor.config.num_points)
-        self.score_threshold = float(score_threshold)
-        self.max_objects = int(max_objects)
-        self.nms_iou = float(nms_iou)
-        self.nms_decay = float(nms_decay)
-        self.proposal_source = proposals
-        self._proposer = None
-        if proposals not in ("geometric", "none"):
-            raise ValueError(f"proposals must be 'geometric' or 'none', got {proposals!r}")
+        self._proposer = make_proposer(cfg)
+        self.postprocess = build_pipeline(cfg)
+        self.classifier = _load_classifier(_classifier_spec(cfg.classifier), cfg)
         self.last_timing: dict[str, float] = {}
         self.last_up: np.ndarray | None = None
         self.last_up_confidence: float = 0.0
         self.last_floor_height: float | None = None
-        self.floor_snap = float(floor_snap)
-        self.point_fit = float(point_fit)
-        if not 0.0 <= self.point_fit < 0.5:
-            raise ValueError(f"point_fit is a quantile in [0, 0.5), got {point_fit}")
-        self.free_space = bool(free_space)
-        self.fit_confidence = float(fit_confidence)
-        if not 0.5 <= self.fit_confidence < 1.0:
-            raise ValueError(
-                f"fit_confidence is a probability in [0.5, 1) (0.5: the mask itself), got {fit_confidence}"
-            )
-        if mirror_tta not in ("given", "always", "never"):
-            raise ValueError(f"mirror_tta must be 'given', 'always' or 'never', got {mirror_tta!r}")
-        self.mirror_tta = mirror_tta
-        self.snap_primitives = bool(snap_primitives)
-        self.refine = bool(refine)
-        self.refine_min_score = float(refine_min_score)
-        self.classifier = _load_classifier(classifier, precision, trace)
+
+    def __getattr__(self, name: str) -> Any:
+        # settings read as attributes (det.score_threshold): the config is their one home
+        config = self.__dict__.get("config")
+        if config is not None and name in config.__dataclass_fields__:
+            return getattr(config, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def configure(self, **changes: Any) -> None:
+        """Change settings that need no reload (see ``node: dynamic`` in docs/parameters.md);
+        ValueError (nothing changed) names every invalid value."""
+        from .detector_config import detector_specs
+
+        fixed = [k for k in changes if k in detector_specs() and detector_specs()[k].node != "dynamic"]
+        if fixed:
+            raise ValueError(f"{', '.join(fixed)} cannot change on a built detector; build a new one")
+        self.config = make_config(self.config, **changes)
+        self.postprocess = build_pipeline(self.config)
 
     # -- stages -----------------------------------------------------------------------
-    def _get_proposer(self):
-        if self._proposer is None:
-            from .proposals.geometric import GeometricProposer
-
-            self._proposer = GeometricProposer()
-        return self._proposer
-
     def _gravity_and_proposals(
         self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, up: np.ndarray | None, need_boxes: bool
     ) -> tuple[np.ndarray, float, float | None, list[tuple[tuple[float, float, float, float], str | None, float]]]:
         """``up`` (given or estimated), its confidence, the camera's height above the floor
         (None: no floor seen, or not needed) and built-in proposals if needed."""
         if need_boxes:
-            if self.proposal_source == "none":
-                raise ValueError("detect() needs boxes2d when the detector was built with proposals='none'")
-            gravity, props = self._get_proposer()(depth, K, up=up, rgb=rgb)
+            if self._proposer is None:
+                raise ValueError("detect() needs boxes2d when the detector was built with proposal_source 'external'")
+            gravity, props = self._proposer(depth, K, up=up, rgb=rgb)
             boxes = [(tuple(p.box2d), p.class_name, float(p.score)) for p in props]
             if up is not None:
                 return np.asarray(up, dtype=np.float64), 1.0, gravity.floor_height, boxes
@@ -346,7 +320,7 @@ class ShapeDetector:
             parsed = [(*_parse_box(b), 1.0) for b in boxes2d]
         else:
             parsed = sorted(built_in, key=lambda p: -p[2])
-        parsed = parsed[: self.max_objects]
+        parsed = parsed[: self.config.max_objects]
         t2 = time.perf_counter()
         valid = valid_depth(depth) if parsed else None
         R_cu = upright_rotation(up_used)
@@ -369,7 +343,8 @@ class ShapeDetector:
         )
 
     def _mirror(self, frame: PreparedFrame) -> bool:
-        return self.mirror_tta == "always" or (self.mirror_tta == "given" and frame.given_boxes)
+        mode = self.config.mirror_tta
+        return mode == "always" or (mode == "given" and frame.given_boxes)
 
     def first_pass(self, frame: PreparedFrame) -> PreparedFrame:
         """The network's first pass over a prepared frame's frustums (``frame.first``; its
@@ -380,71 +355,47 @@ class ShapeDetector:
         t0 = time.perf_counter()
         class_ids = [CLASS_TO_ID[c] if c is not None else None for _, c, _ in frame.boxes]
         # the class-given second pass reuses the first pass's segmentation features
-        keep = self.refine and any(c is None for c in class_ids)
+        keep = self.config.refine and any(c is None for c in class_ids)
         frame.first = self.predictor.predict(frame.frustums, class_ids, mirror=self._mirror(frame), keep_features=keep)
         frame.timing["network_ms"] = 1e3 * (time.perf_counter() - t0)
         return frame
 
-    def finish(self, frame: PreparedFrame) -> list[Object3D]:
+    def finish(self, frame: PreparedFrame, hook: Hook | None = None) -> list[Object3D]:
         """Network (first pass; for built-in proposals the proposal classifier and the
-        class-given second pass) and post-processing (point fit, floor contact, 3D NMS for
-        built-in proposals, primitive snapping) of a frame from :meth:`prepare`: its
-        objects, sorted by score. Sets ``last_up``, ``last_up_confidence``,
+        class-given second pass) and the post-processing pipeline (:attr:`postprocess`;
+        ``hook`` sees the objects before each of its steps) of a frame from :meth:`prepare`:
+        its objects, sorted by score. Sets ``last_up``, ``last_up_confidence``,
         ``last_floor_height`` and ``last_timing`` (milliseconds per stage: ``network_ms``
         is the first pass, ``classifier_ms`` and ``refine_ms`` the other two)."""
         if frame.first is None:
             self.first_pass(frame)
+        cfg = self.config
         t_net = time.perf_counter()
-        boxes = frame.boxes
-        mirror = self._mirror(frame)
         preds = list(frame.first or [])
-        agnostic = [i for i, (_, c, _) in enumerate(boxes) if c is None]
+        agnostic = [i for i, (_, c, _) in enumerate(frame.boxes) if c is None]
         if self.classifier is not None and not frame.given_boxes and agnostic:
             preds = reclassify(self.classifier, frame, preds)
         t_cls = time.perf_counter()
-        if self.refine and agnostic:
-            second = self.predictor.refine(
-                [frame.frustums[i] for i in agnostic], [preds[i] for i in agnostic], mirror, self.refine_min_score
-            )
+        if cfg.refine and agnostic:
+            second = self.predictor.refine([frame.frustums[i] for i in agnostic], [preds[i] for i in agnostic],
+                                           self._mirror(frame), cfg.refine_min_score)
             for i, p in zip(agnostic, second):
                 preds[i] = p
         t4 = time.perf_counter()
-        objects: list[Object3D] = []
-        for (box, _, _), fr, pred in zip(boxes, frame.frustums, preds):
-            if pred.class_name not in CLASS_TO_ID or pred.score < self.score_threshold:
-                continue
-            objects.append(
-                Object3D(
-                    class_name=pred.class_name,
-                    score=float(pred.score),
-                    center=pred.center,
-                    size=pred.size,
-                    rotation=pred.rotation,
-                    box2d=box,
-                    primitives=list(pred.primitives),
-                    pixel_index=fr.pixel_index,
-                    seg_labels=np.asarray(pred.seg_prob) > 0.5,
-                    seg_prob=np.asarray(pred.seg_prob),
-                    class_scores=np.asarray(pred.class_probs[: len(CLASS_TO_ID)], dtype=np.float64),
-                )
-            )
-        points_cam = functools.partial(pixel_points, frame.depth, frame.K)
-        objects = grow_all_to_points(objects, points_cam, self.point_fit, self.fit_confidence)
-        objects = snap_to_floor(objects, frame.up, frame.floor_height, self.floor_snap)
-        if self.free_space:  # after the floor snap: measured points near the box bottom are floor
-            objects = carve_all(objects, frame.depth, frame.K, points_cam, min_prob=self.fit_confidence)
-        if not frame.given_boxes:  # built-in proposals overlap by design; given boxes are one per object
-            objects = nms_3d(objects, self.nms_iou, decay=self.nms_decay, min_score=self.score_threshold)
-        if self.snap_primitives:
-            objects = snap_primitives(objects)
-        objects.sort(key=lambda o: -o.score)
+        objects = [
+            _to_object(box, fr, pred)
+            for (box, _, _), fr, pred in zip(frame.boxes, frame.frustums, preds)
+            if pred.class_name in CLASS_TO_ID and pred.score >= cfg.score_threshold
+        ]
+        ctx = PostContext(frame.depth, frame.K, frame.up, frame.floor_height, frame.given_boxes)
+        objects = self.postprocess.run(objects, ctx, hook)
         t5 = time.perf_counter()
         self.last_up, self.last_up_confidence = frame.up, frame.up_confidence
         self.last_floor_height = frame.floor_height
         timing = dict(frame.timing)
         timing.update(classifier_ms=1e3 * (t_cls - t_net), refine_ms=1e3 * (t4 - t_cls), post_ms=1e3 * (t5 - t4))
         timing["total_ms"] = sum(timing.values())
-        timing["num_frustums"] = float(len(boxes))
+        timing["num_frustums"] = float(len(frame.boxes))
         self.last_timing = timing
         return objects
 
@@ -453,9 +404,9 @@ class ShapeDetector:
         first real frame does not pay torch's and OpenCV's first-call costs, nor the
         tracing of the network's graphs and its kernels for each batch size up to
         ``max_objects`` (:meth:`FrustumPredictor.warm_up`)."""
-        self.predictor.warm_up(max_batch=self.max_objects)
+        self.predictor.warm_up(max_batch=self.config.max_objects)
         if self.classifier is not None and hasattr(self.classifier, "warm_up"):
-            self.classifier.warm_up(max_batch=self.max_objects)
+            self.classifier.warm_up(max_batch=self.config.max_objects)
         h, w = 120, 160
         K = np.array([[130.0, 0.0, 79.5], [0.0, 130.0, 59.5], [0.0, 0.0, 1.0]])
         v = np.arange(h, dtype=np.float64)[:, None] - K[1, 2]
@@ -464,7 +415,7 @@ class ShapeDetector:
         depth[50:100, 60:100] = 2.0
         rgb = np.full((h, w, 3), 128, np.uint8)
         self.detect(rgb, depth, K, boxes2d=[(60, 50, 100, 100, "chair")])
-        if self.proposal_source != "none":
+        if self._proposer is not None:
             self.detect(rgb, depth, K)
 
     def detect_frame(self, frame: Any, boxes2d: Sequence[Any] | None = None, use_gt_up: bool = False) -> list[Object3D]:

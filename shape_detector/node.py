@@ -46,7 +46,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from .imu_gravity import ImuGravityFilter
-from .node_params import CHOICES, DETECTOR_ATTRS, PARAMETERS, REBUILD, build_detector, validate, validate_all
+from .node_params import DETECTOR_ATTRS, PARAMETERS, REBUILD, apply_to_detector, build_detector, validate, validate_all
 from .node_stats import NodeStats, WarningLimiter, problem_key, stats_line
 from .scheduler import FrameScheduler, FrameSet
 from .sync import ApproximateTimeSynchronizer, header_stamp_ns
@@ -58,17 +58,17 @@ def _unit(v: Any) -> np.ndarray:
 
 
 def _descriptor(name: str) -> ParameterDescriptor:
-    default, desc, read_only, extra = PARAMETERS[name]
-    kwargs: dict[str, Any] = dict(description=desc, read_only=read_only,
-                                  dynamic_typing=bool(extra.get("dynamic_typing", False)))
-    if "range" in extra and isinstance(default, float):
-        lo, hi = extra["range"]
+    spec = PARAMETERS[name]
+    kwargs: dict[str, Any] = dict(description=spec.doc, read_only=spec.node == "read_only",
+                                  dynamic_typing=spec.length is not None)
+    if spec.range is not None and spec.kind is float:
+        lo, hi = spec.range
         kwargs["floating_point_range"] = [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
-    elif "range" in extra:
-        lo, hi = extra["range"]
+    elif spec.range is not None:
+        lo, hi = spec.range
         kwargs["integer_range"] = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
-    if name in CHOICES:
-        kwargs["additional_constraints"] = "one of: " + ", ".join(CHOICES[name])
+    if spec.choices:
+        kwargs["additional_constraints"] = "one of: " + ", ".join(spec.choices)
     return ParameterDescriptor(**kwargs)
 
 
@@ -90,7 +90,7 @@ class DetectorNode(Node):
         self._last_reported_synced = -1
         self._scheduler: FrameScheduler | None = None
         for name in PARAMETERS:
-            self.declare_parameter(name, PARAMETERS[name][0], _descriptor(name))
+            self.declare_parameter(name, PARAMETERS[name].default, _descriptor(name))
         self.p: dict[str, Any] = {name: self.get_parameter(name).value for name in PARAMETERS}
         problems = validate_all(self.p)
         if problems:
@@ -194,8 +194,8 @@ class DetectorNode(Node):
         self.p[name] = value
         if name in ("sync_slop", "sync_queue_size"):
             self.sync.configure(queue_size=self.p["sync_queue_size"], slop=self.p["sync_slop"])
-        elif name in DETECTOR_ATTRS and hasattr(self.detector, name):
-            setattr(self.detector, name, value)
+        elif name in DETECTOR_ATTRS and apply_to_detector(self.detector, name, value):
+            pass
         elif (name in DETECTOR_ATTRS or name in REBUILD) and self._scheduler is not None:
             self._scheduler.rebuild = True
         elif name == "imu_to_camera":

@@ -1,4 +1,4 @@
-"""Golden detections: the detector's output on the sample bag and 50 validation frames.
+"""Golden detections: the accurate preset's output on the sample bag and 50 validation frames.
 
 Recorded before a refactor (``python -m test.golden --write``), compared after it by
 ``test_golden.py`` within tolerance: a move of code must not move a box.
@@ -50,10 +50,10 @@ def frames() -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
 
 
 def detect_all(detector: Any = None) -> dict[str, list[dict[str, Any]]]:
-    """Detections of the default ``ShapeDetector()`` (or ``detector``) on every golden frame."""
+    """Detections of ``ShapeDetector(preset="accurate")`` (or ``detector``) on every golden frame."""
     from shape_detector import ShapeDetector
 
-    det = detector or ShapeDetector()
+    det = detector or ShapeDetector(preset="accurate")
     return {name: _objects(det.detect(rgb, depth, K)) for name, rgb, depth, K in frames()}
 
 

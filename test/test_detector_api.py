@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from shape_detector import ShapeDetector
-from shape_detector.evaluation.iou import box3d_iou
+from shape_detector.box_iou import box3d_iou
 from shape_detector.geometry import rotation_to_heading
 from shape_detector.proposals.evaluate import placed_box_scene
 
@@ -145,3 +145,17 @@ def test_prepare_then_finish_is_detect_and_frames_may_interleave(detector):
     np.testing.assert_allclose(detector.last_up, up_b, atol=1e-9)  # finish() sets its frame's state
     assert detector.last_timing["num_frustums"] == len(pb.frustums)
     assert set(detector.last_timing) >= {"proposals_ms", "frustums_ms", "network_ms", "post_ms", "total_ms"}
+
+
+def test_settings_come_from_one_config_and_bad_ones_are_refused(detector):
+    from shape_detector.detector_config import preset
+
+    assert ShapeDetector(preset="accurate", score_threshold=0.0).config == preset("accurate", score_threshold=0.0)
+    with pytest.raises(ValueError, match="max_objects"):
+        ShapeDetector(max_objects=0)
+    det = ShapeDetector(classifier=False, proposals="none", num_threads=None, weights=None)
+    assert det.classifier is None and det.config.proposal_source == "external" and det.config.num_threads == 0
+    det.configure(score_threshold=0.6, free_space=False)
+    assert det.score_threshold == 0.6 and "free_space" not in det.postprocess.names
+    with pytest.raises(ValueError, match="workers"):
+        det.configure(workers=2)

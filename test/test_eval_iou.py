@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from shape_detector.evaluation.iou import (
+from shape_detector.box_iou import (
     box2d_iou,
     box3d_iou,
     box3d_iou_grid,

@@ -1,8 +1,8 @@
-"""Floor contact (shape_detector.floor.snap_to_floor)."""
+"""Floor contact (shape_detector.postprocess.floor.snap_to_floor)."""
 
 import numpy as np
 
-from shape_detector.floor import snap_to_floor
+from shape_detector.postprocess.floor import snap_to_floor
 from shape_detector.geometry import heading_to_rotation
 from shape_detector.types import Cuboid, Object3D
 

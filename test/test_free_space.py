@@ -7,7 +7,7 @@ import functools
 import numpy as np
 import pytest
 
-from shape_detector.free_space import FLAT_TOPPED, CarveParams, carve_free_space
+from shape_detector.postprocess.free_space import FLAT_TOPPED, CarveParams, carve_free_space
 from shape_detector.frustum import pixel_points
 from shape_detector.proposals.evaluate import chair_parts, placed_box_scene, toy_scene
 from shape_detector.types import Cuboid, Object3D

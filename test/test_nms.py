@@ -1,9 +1,9 @@
-"""3D NMS (shape_detector.nms)."""
+"""3D NMS (shape_detector.postprocess.nms)."""
 
 import numpy as np
 
 from shape_detector.geometry import heading_to_rotation
-from shape_detector.nms import nms_3d, overlap_ratios
+from shape_detector.postprocess.nms import nms_3d, overlap_ratios
 from shape_detector.types import Object3D
 
 R = heading_to_rotation(0.3, None)
@@ -37,7 +37,7 @@ def test_touching_objects_survive():
 
 def test_prism_overlaps_match_the_exact_iou():
     """The per-frame prism shortcut gives box3d_iou's numbers (random yaw-only boxes)."""
-    from shape_detector.nms import _prism_overlap, _prisms
+    from shape_detector.postprocess.nms import _prism_overlap, _prisms
 
     rng = np.random.default_rng(0)
     up = np.array([0.05, -0.99, 0.1])

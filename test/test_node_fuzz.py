@@ -23,7 +23,7 @@ from shape_detector.types import Object3D
 
 ROOT = Path(__file__).resolve().parents[1]
 MS = 1_000_000
-PARAMETERS_DEFAULT_WARN = PARAMETERS["warn_image_bytes"][0]
+PARAMETERS_DEFAULT_WARN = PARAMETERS["warn_image_bytes"].default
 K = np.array([[100.0, 0, 39.5], [0, 100.0, 29.5], [0, 0, 1]])
 
 

@@ -12,7 +12,7 @@ from shape_detector.validation import check_choice, check_number, check_vector
 
 
 def test_defaults_are_valid():
-    assert validate_all({k: v[0] for k, v in PARAMETERS.items()}) == []
+    assert validate_all({k: v.default for k, v in PARAMETERS.items()}) == []
 
 
 @pytest.mark.parametrize("name, value", [

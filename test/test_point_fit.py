@@ -1,4 +1,4 @@
-"""Growing boxes to their segmented points (shape_detector.point_fit)."""
+"""Growing boxes to their segmented points (shape_detector.postprocess.point_fit)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from shape_detector.geometry import rot_z
-from shape_detector.point_fit import MIN_POINTS, grow_all_to_points, grow_to_points
+from shape_detector.postprocess.point_fit import MIN_POINTS, grow_all_to_points, grow_to_points
 from shape_detector.types import Cuboid, Object3D
 
 

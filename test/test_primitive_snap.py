@@ -1,9 +1,9 @@
-"""Snapping primitives to their box (shape_detector.primitive_snap)."""
+"""Snapping primitives to their box (shape_detector.postprocess.primitive_snap)."""
 
 import numpy as np
 
 from shape_detector.geometry import heading_to_rotation, rot_z
-from shape_detector.primitive_snap import snap_in_box, snap_primitives
+from shape_detector.postprocess.primitive_snap import snap_in_box, snap_primitives
 from shape_detector.types import Cuboid, Object3D
 
 BOX = np.array([1.2, 0.8, 0.75])  # a table: l, w, h (m)

@@ -42,7 +42,7 @@ class SlowDetector:
 
 class Host:
     def __init__(self, detector) -> None:
-        self.p = {k: v[0] for k, v in PARAMETERS.items()}
+        self.p = {k: v.default for k, v in PARAMETERS.items()}
         self.p["pipeline_split"] = "prepare"
         self.detector = detector
         self.stats = NodeStats()

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from ..classes import CLASSES
-from .iou import iou_matrix
+from ..box_iou import iou_matrix
 
 
 def thr_key(t: float) -> str:

@@ -15,7 +15,7 @@ a list of such records into per-class means/medians.
   correspondence, so heading flips are penalised); the flip-invariant variant takes the
   smaller of that and the error against the GT box turned by 180 degrees about its
   vertical (the Frustum-PointNet corner-loss convention);
-* 3D IoU: :func:`shape_detector.evaluation.iou.box3d_iou`;
+* 3D IoU: :func:`shape_detector.box_iou.box3d_iou`;
 * segmentation accuracy: share of points whose predicted object/background label equals
   the GT label.
 """
@@ -29,7 +29,7 @@ import numpy as np
 
 from ..classes import CLASSES
 from ..geometry import box_corners, rotation_to_heading, wrap_angle
-from .iou import box3d_iou
+from ..box_iou import box3d_iou
 
 #: corner permutation of :func:`box_corners` for the same box turned 180 degrees about z
 _FLIP_Z = np.array([2, 3, 0, 1, 6, 7, 4, 5])

@@ -24,7 +24,7 @@ import itertools
 
 import numpy as np
 
-from .types import Cuboid, Object3D
+from ..types import Cuboid, Object3D
 
 _PERMS = np.array(list(itertools.permutations(range(3))))  # (6, 3)
 

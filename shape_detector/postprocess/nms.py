@@ -6,12 +6,12 @@ import copy
 
 import numpy as np
 
-from .types import Object3D
+from ..types import Object3D
 
 
 def overlap_ratios(a: Object3D, b: Object3D) -> tuple[float, float]:
     """(IoU, intersection / smaller volume) of two boxes; the second catches nested boxes."""
-    from .evaluation.iou import box3d_iou
+    from ..box_iou import box3d_iou
 
     iou = box3d_iou(a.center, a.size, a.rotation, b.center, b.size, b.rotation)
     va, vb = float(np.prod(a.size)), float(np.prod(b.size))
@@ -22,8 +22,8 @@ def overlap_ratios(a: Object3D, b: Object3D) -> tuple[float, float]:
 def _prisms(objects: list[Object3D]) -> list[tuple[np.ndarray, float, float, float]] | None:
     """Per box (footprint (4,2) in the upright frame, z min, z max, volume), all boxes
     sharing the first one's vertical; None when some box is not yaw-only about it."""
-    from .evaluation.iou import VERTICAL_TOL, box_prism, vertical_axis
-    from .geometry import normalize, upright_rotation
+    from ..box_iou import VERTICAL_TOL, box_prism, vertical_axis
+    from ..geometry import normalize, upright_rotation
 
     up = normalize(np.asarray(objects[0].rotation, np.float64)[:, 2])
     R_cu = upright_rotation(up)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .types import Object3D
+from ..types import Object3D
 
 
 def snap_to_floor(

@@ -46,11 +46,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .classes import CLASSES
-from .frustum import pixel_points
-from .geometry import box_corners, project_points
+from ..classes import CLASSES
+from ..frustum import pixel_points
+from ..geometry import box_corners, project_points
 from .point_fit import PointSource, segmented_points, sorted_quantile
-from .types import Object3D
+from ..types import Object3D
 
 
 #: flat-topped furniture: the top surface spans the footprint

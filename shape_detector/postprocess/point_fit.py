@@ -16,7 +16,7 @@ from typing import Callable
 
 import numpy as np
 
-from .types import Object3D
+from ..types import Object3D
 
 #: camera-frame points of a frame's pixels: flat pixel indices ``v * W + u`` -> (n, 3) metres
 PointSource = Callable[[np.ndarray], np.ndarray]
