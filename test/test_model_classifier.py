@@ -92,9 +92,12 @@ def test_save_load_round_trip(tmp_path):
     a, b = model.probabilities(p, g), loaded.probabilities(p, g)
     np.testing.assert_allclose(a, b, atol=2e-3)  # float16 storage
     assert a.shape == (1, NUM_CLASSES + 1) and a.sum() == pytest.approx(1.0)
+    torch.save({"format": "other", "state_dict": {}}, tmp_path / "x.pt")
     with pytest.raises(ValueError, match="proposal-classifier"):
-        torch.save({"format": "other"}, tmp_path / "x.pt")
         load_classifier(tmp_path / "x.pt")
+    torch.save({"format": "other"}, tmp_path / "y.pt")
+    with pytest.raises(ValueError, match="not a shape_detector weights file"):
+        load_classifier(tmp_path / "y.pt")
 
 
 def test_fit_temperature_recovers_a_known_scale():
@@ -194,7 +197,7 @@ def test_classifier_predictor_matches_the_classifier(trace):
     want = model.probabilities(p, g)
     import copy
 
-    fp32 = ClassifierPredictor(copy.deepcopy(model), precision="fp32", trace=trace)
+    fp32 = ClassifierPredictor(copy.deepcopy(model), precision="fp32", trace=trace, backend="torch")
     np.testing.assert_allclose(fp32.probabilities(p, g), want, atol=1e-6)
     np.testing.assert_allclose(fp32.probabilities(p[:1], g[:1]), want[:1], atol=1e-6)
     bf16 = ClassifierPredictor(copy.deepcopy(model), precision="bf16", trace=trace)

@@ -122,7 +122,7 @@ def test_predictor_decodes_known_box_to_gt(weights):
         "prim_center": np.zeros((1, M, 3)), "prim_size": np.tile(obj.size / 2, (1, M, 1)),
         "prim_rotation": np.tile(np.eye(3), (1, M, 1, 1)),
     }
-    p = pred._decode_one(fr, None, arr, 0)
+    p = pred._decode([fr], [None], arr)[0]
     assert np.allclose(p.center, obj.center, atol=1e-6)
     assert np.allclose(p.rotation, obj.rotation, atol=1e-6)
     assert abs(wrap_angle(p.heading_U - obj.heading)) < 1e-6
@@ -137,14 +137,19 @@ def test_bench_network_smoke(weights):
     assert set(r["results"]) == {1, 2} and r["results"][2]["median_ms"] > 0
 
 
-def test_old_weights_without_primitive_param_load_as_sigmoid_tanh(tmp_path):
+def test_weights_of_another_version_are_refused_with_the_reason(tmp_path):
     net = FrustumShapeNet(ModelConfig(**SMALL))
-    blob = {"model_config": {k: v for k, v in net.config.to_dict().items() if k != "primitive_param"},
-            "state_dict": net.state_dict(), "meta": {}}
+    blob = {"model_config": net.config.to_dict(), "state_dict": net.state_dict(), "meta": {}}
     torch.save(blob, tmp_path / "old.pt")
-    net2, _ = load_weights(tmp_path / "old.pt")
-    assert net2.config.primitive_param == "sigmoid_tanh"
-    assert ModelConfig.from_dict({"num_points": 64}).primitive_param == "exp_linear"
+    with pytest.raises(ValueError, match="format None"):
+        load_weights(tmp_path / "old.pt")
+    blob.update(format="shape_detector.frustum_shape_net", version=1)
+    torch.save(blob, tmp_path / "v1.pt")
+    with pytest.raises(ValueError, match="version 1"):
+        load_weights(tmp_path / "v1.pt")
+    save_weights(net, tmp_path / "new.pt")
+    again, _ = load_weights(tmp_path / "new.pt")
+    assert again.config == net.config
 
 
 def test_fused_batchnorm_matches_eval_network():
@@ -217,7 +222,7 @@ def test_bf16_precision_runs_and_stays_close(weights):
     frs = [extract_frustum(frame.rgb, frame.depth, frame.K, o.box2d, 512, up=frame.up,
                            rng=np.random.default_rng(i)) for i, o in enumerate(frame.objects)]
     ids = [CLASSES.index(o.class_name) for o in frame.objects]
-    ref = FrustumPredictor(weights, device="cpu", num_threads=1).predict(frs, ids)
+    ref = FrustumPredictor(weights, device="cpu", num_threads=1, backend="torch").predict(frs, ids)
     bf = FrustumPredictor(weights, device="cpu", num_threads=1, precision="bf16")
     got = bf.predict(frs, ids)
     assert bf.precision == "bf16" and len(got) == len(ref)
@@ -237,11 +242,11 @@ def test_auto_precision_uses_bf16_for_large_batches_on_amx_cpus(weights, monkeyp
                            rng=np.random.default_rng(i)) for i, o in enumerate(frame.objects)]
     pts = np.stack([f.points for f in frs] * 3)[: predictor_module.AUTO_BF16_MIN_BATCH]
     oh = np.zeros((len(pts), len(CLASSES)), np.float32)
-    fp = FrustumPredictor(weights, device="cpu", num_threads=1)
-    bf = FrustumPredictor(weights, device="cpu", num_threads=1, precision="bf16")
+    fp = FrustumPredictor(weights, device="cpu", num_threads=1, backend="torch")
+    bf = FrustumPredictor(weights, device="cpu", num_threads=1, precision="bf16", backend="torch")
     for amx in (True, False):
         monkeypatch.setattr(predictor_module, "cpu_has_amx", lambda amx=amx: amx)
-        auto = FrustumPredictor(weights, device="cpu", num_threads=1, precision="auto")
+        auto = FrustumPredictor(weights, device="cpu", num_threads=1, precision="auto", backend="torch")
         assert auto.bf16_min_batch == (predictor_module.AUTO_BF16_MIN_BATCH if amx else None)
         big = auto.forward_arrays(pts, oh)["center"]
         small = auto.forward_arrays(pts[:1], oh[:1])["center"]

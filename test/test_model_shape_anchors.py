@@ -62,12 +62,11 @@ def test_class_templates_from_dataset_arrays():
     assert np.all(lo[0] == 0) and np.all(hi[0] == 0)
 
 
-@pytest.mark.parametrize("mode", ["exp_linear", "sigmoid_tanh"])
-def test_templates_to_raw_inverts_the_primitive_mapping(mode):
+def test_templates_to_raw_inverts_the_primitive_mapping():
     lo, hi = _table()
-    raw = torch.tensor(templates_to_raw(lo, hi, 0.01, mode), dtype=torch.float64)[None]
+    raw = torch.tensor(templates_to_raw(lo, hi, 0.01), dtype=torch.float64)[None]
     box = torch.tensor([[1.6, 0.9, 0.74]], dtype=torch.float64)
-    p = primitive_params(raw, box, 0.01, mode)
+    p = primitive_params(raw, box, 0.01)
     np.testing.assert_allclose(p["center"][0].numpy(), 0.5 * (lo + hi) * box.numpy(), atol=1e-9)
     # sizes are exact down to the clip that keeps the raw values finite (1e-3 of the box)
     np.testing.assert_allclose(p["size"][0].numpy(), (hi - lo) * box.numpy(), atol=2e-3)
@@ -93,4 +92,4 @@ def test_network_adds_the_given_or_predicted_class_anchor():
     assert torch.all(raw[0] == 4.0)
     pred = out["cls_logits"][1:, : cfg.num_classes].argmax(1).float()
     assert torch.all(raw[1:].flatten(1)[:, 0] == pred)  # an anchor is selected, not computed
-    assert FrustumShapeNet(ModelConfig()).shape_anchor is None
+    assert FrustumShapeNet(ModelConfig(shape_anchors=False)).shape_anchor is None

@@ -102,7 +102,7 @@ def test_predictor_traced_and_eager_predictions_agree():
         pts = np.concatenate([rng.normal(0, 0.4, (512, 3)) + [0, 0, 3], rng.uniform(0, 1, (512, 3))], 1)
         frustums.append(Frustum(points=pts.astype(np.float32), pixel_index=np.arange(512), valid=512, phi=0.0,
                                 R_cu=np.eye(3)))
-    a = FrustumPredictor(None, workers=2)
+    a = FrustumPredictor(None, workers=2, backend="torch")
     b = FrustumPredictor(None, workers=2, trace=False)
     ids = [None, 2, None, 7, 0]
     first_a = a.predict(frustums, ids, keep_features=True)
@@ -118,7 +118,7 @@ def test_predictor_traced_and_eager_predictions_agree():
 def test_warm_up_traces_every_graph_a_frame_needs(precision, graphs):
     from shape_detector.frustum import Frustum
 
-    pred = FrustumPredictor(None, precision=precision, workers=1)
+    pred = FrustumPredictor(None, precision=precision, workers=1, backend="torch")
     pred.warm_up()
     assert pred._forward.traced == graphs  # first pass and the feature-reusing second pass
     rng = np.random.default_rng(2)

@@ -14,7 +14,6 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from ..frustum import Frustum
 from ..geometry import upright_rotation
@@ -45,13 +44,15 @@ def bench_network(
     workers: int = 1,
     precision: str = "fp32",
     trace: bool = True,
+    backend: str = "auto",
 ) -> dict:
     """Median / mean ms per frame (one batched ``predict`` of ``count`` frustums).
 
     ``workers``: threads the batch is split over (:class:`FrustumPredictor`); ``precision``
-    'fp32' or 'bf16'; ``trace``: TorchScript graphs (default) or the eager forward.
-    Then the largest count once more beside a busy pure-Python thread, traced and eager, one
-    worker (``beside_python``): the node's other pipeline stage is such a thread for part of
+    'fp32' or 'bf16'; ``trace``: TorchScript graphs (default) or the eager forward;
+    ``backend``: the predictor's (``auto``, ``onnxruntime``, ``torch``).
+    Then the largest count once more beside a busy pure-Python thread, onnxruntime, traced and
+    eager, one worker (``beside_python``): the node's other pipeline stage is such a thread for part of
     its time.
 
     ``threads`` is an alias of ``num_threads`` (used when not None).
@@ -67,20 +68,20 @@ def bench_network(
 
     if threads is not None:
         num_threads = threads
-    if num_threads is not None:
-        torch.set_num_threads(int(num_threads))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         pred = FrustumPredictor(
-            weights, device=device, num_threads=num_threads, workers=workers, precision=precision, trace=trace
+            weights, device=device, num_threads=num_threads, workers=workers, precision=precision, trace=trace,
+            backend=backend,
         )
+    dev = getattr(pred.device, "type", str(pred.device))
     n_pts = int(num_points or pred.num_points)
     rng = np.random.default_rng(0)
     results = {}
     for c in counts:
         fr = _fake_frustums(int(c), n_pts, rng)
         cls = [i % pred.config.num_classes for i in range(int(c))]
-        times, cpu = _timed(lambda: pred.predict(fr, cls), warmup, repeats, pred.device.type == "cuda")
+        times, cpu = _timed(lambda: pred.predict(fr, cls), warmup, repeats, dev == "cuda" and pred.backend == "torch")
         med = float(np.median(times))
         results[int(c)] = {"median_ms": med, "mean_ms": float(np.mean(times)), "fps": 1000.0 / med,
                            "cpu_ms": float(np.median(cpu))}
@@ -88,28 +89,31 @@ def bench_network(
             print(
                 f"network: {c:3d} objects/frame  {med:7.2f} ms/frame (median of {repeats})  "
                 f"{1000.0 / med:6.1f} frames/s  cpu {results[int(c)]['cpu_ms']:.1f} ms  "
-                f"[{pred.device}, {torch.get_num_threads()} threads, {pred.workers} workers, {n_pts} pts, {pred.precision}, "
+                f"[{pred.backend}, {dev}, {num_threads} threads, {pred.workers} workers, {n_pts} pts, {pred.precision}, "
                 f"{'traced' if trace else 'eager'}]"
             )
     builtin = _bench_builtin_path(pred, counts, n_pts, rng, repeats, warmup, verbose, trace)
     beside = {}
-    if pred.device.type == "cpu":
+    if dev == "cpu":
         c = int(max(counts))
         fr = _fake_frustums(c, n_pts, rng)
         cls = [i % pred.config.num_classes for i in range(c)]
-        for name in ("traced", "eager"):  # one worker, as in the node's pipeline
+        for name in ("onnxruntime", "traced", "eager"):  # one worker, as in the node's pipeline
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                p = FrustumPredictor(weights, device=device, workers=1, precision=precision, trace=name == "traced")
+                p = FrustumPredictor(weights, device=device, workers=1, precision=precision, trace=name != "eager",
+                                     backend="onnxruntime" if name == "onnxruntime" else "torch")
             beside[name] = float(np.median(_beside_busy_python(lambda: p.predict(fr, cls), warmup=2, repeats=3)))
         if verbose:
-            print(f"network beside a busy pure-Python thread, {c} objects/frame, 1 worker: traced {beside['traced']:.1f} ms, "
+            print(f"network beside a busy pure-Python thread, {c} objects/frame, 1 worker: onnxruntime "
+                  f"{beside['onnxruntime']:.1f} ms, traced {beside['traced']:.1f} ms, "
                   f"eager {beside['eager']:.1f} ms (the eager forward waits for the GIL at every op)")
     return {
         "builtin_path": builtin,
         "beside_python": beside,
-        "device": str(pred.device),
-        "num_threads": torch.get_num_threads(),
+        "device": dev,
+        "backend": pred.backend,
+        "num_threads": num_threads,
         "workers": pred.workers,
         "precision": pred.precision,
         "num_points": n_pts,
@@ -123,13 +127,18 @@ def _timed(run, warmup: int, repeats: int, cuda: bool) -> tuple[list[float], lis
     for _ in range(warmup):
         run()
     wall, cpu = [], []
+    sync = None
+    if cuda:
+        import torch
+
+        sync = torch.cuda.synchronize
     for _ in range(repeats):
-        if cuda:
-            torch.cuda.synchronize()
+        if sync:
+            sync()
         t0, c0 = time.perf_counter(), time.process_time()
         run()
-        if cuda:
-            torch.cuda.synchronize()
+        if sync:
+            sync()
         wall.append((time.perf_counter() - t0) * 1000.0)
         cpu.append((time.process_time() - c0) * 1000.0)
     return wall, cpu
@@ -162,12 +171,13 @@ def _bench_builtin_path(
     """ms per frame of the network work on built-in proposals: the class-agnostic first pass,
     the packaged proposal classifier and the class-given second pass of every frustum (the
     detector's worst case: ``refine_min_score`` 0). Empty when no classifier is packaged."""
-    from ..detector import DEFAULT_CLASSIFIER, _load_classifier
-    from .classifier import frame_inputs
+    from ..detector import DEFAULT_CLASSIFIER
+    from .classifier_inputs import frame_inputs
+    from .classifier_runtime import ClassifierPredictor
 
     if not DEFAULT_CLASSIFIER.is_file():
         return {}
-    clf = _load_classifier(True, pred.precision, trace)  # as the detector loads it
+    clf = ClassifierPredictor.from_file(DEFAULT_CLASSIFIER, pred.precision, trace, pred.backend)
     out = {}
     for c in counts:
         fr = _fake_frustums(int(c), n_pts, rng)
@@ -178,7 +188,7 @@ def _bench_builtin_path(
                                             clf.config))
             pred.refine(fr, first)
 
-        times, _ = _timed(run, warmup, repeats, pred.device.type == "cuda")
+        times, _ = _timed(run, warmup, repeats, False)
         med = float(np.median(times))
         out[int(c)] = {"median_ms": med, "fps": 1000.0 / med}
         if verbose:

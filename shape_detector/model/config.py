@@ -36,32 +36,33 @@ class ModelConfig:
       as in Frustum PointNets).
     * ``num_heading_bins`` (NH), ``num_size_clusters`` (NS = class mean sizes),
       ``num_primitives`` (M cuboids of the shape head).
-    * ``shape_branch``: ``"canonical"`` (default) gives the shape head, besides the box
-      feature, a small PointNet (``shape_widths``) over the object points expressed in the
-      box's canonical frame and divided by its size (GT box, jittered, while training; the
-      predicted box at inference); ``"shared"`` is the thesis' variant (shape head on the
-      box feature only).
+    * the shape head reads, besides the box feature, a small PointNet (``shape_widths``) over
+      the object points expressed in the box's canonical frame and divided by its size (GT
+      box, jittered, while training; the predicted box at inference).
     * ``prune_volume_frac``: at inference, primitives whose volume is below this share
       of the predicted box volume are dropped.
     * ``shape_anchors``: the shape head's raw output is added to a learnt per-class anchor
       row (``FrustumShapeNet.shape_anchor``, started from class templates of the GT parts,
-      see :mod:`.shape_anchors`); the given class's, else the class head's argmax.
+      see :mod:`.shape_anchors`); the given class's, else the class head's argmax. On by default.
     * ``box_context_widths``: non-empty adds a PointNet (``ctx_mlp``) over *all* frustum
       points (xyz relative to the stage-1 centre, frame F, metres, plus the hard foreground
       mask as a 4th channel) whose max-pooled feature joins the box head's input: the floor
-      and walls seen around the object bound its hidden extent. Empty (default): off.
+      and walls seen around the object bound its hidden extent. Empty: off.
     * ``box2_widths``: non-empty adds a second box stage (``box2_mlp`` +
       ``box2_head``, ``box2_fc``): a PointNet over all frustum points expressed in the
       first box's canonical frame and divided by its size (the box becomes the unit cube;
       clamped to +-4), with the hard mask as a 4th channel; from its feature, the box
       feature, the class one-hot and the first box's log size it regresses a residual centre
-      (box axes, in box sizes), log size and heading. Empty (default): off.
+      (box axes, in box sizes), log size and heading. Empty: off.
     * ``shape_context_widths``: non-empty adds a PointNet (``shape_ctx_mlp``) over *all*
       frustum points in the shape branch's box frame divided by the box size (as the shape
       branch sees its object points; clamped to +-4), with the hard mask as a 4th channel;
       its max-pooled feature joins the shape head's input. The object's points say where it
       is; the rest of the frustum says where it is not (floor seen under a seat, wall seen
-      through a shelf). Needs ``shape_branch="canonical"``. Empty (default): off.
+      through a shelf). Empty: off.
+
+    The defaults are the shipped network (``shape_detector/weights/default.pt``); earlier
+    training phases switch branches off (see ``shape_detector/training/recipes``).
     """
 
     num_points: int = 512
@@ -81,25 +82,23 @@ class ModelConfig:
     tnet_fc: tuple[int, ...] = (128, 64)
     box_widths: tuple[int, ...] = (64, 128, 256, 512)
     box_fc: tuple[int, ...] = (256, 128)
-    box_context_widths: tuple[int, ...] = ()
-    box2_widths: tuple[int, ...] = ()
+    box_context_widths: tuple[int, ...] = (64, 128, 256)
+    box2_widths: tuple[int, ...] = (64, 128, 256)
     box2_fc: tuple[int, ...] = (128, 64)
     shape_fc: tuple[int, ...] = (256, 128)
-    shape_branch: str = "canonical"
     shape_widths: tuple[int, ...] = (64, 128, 256)
-    shape_context_widths: tuple[int, ...] = ()
+    shape_context_widths: tuple[int, ...] = (64, 128, 256)
     cls_fc: tuple[int, ...] = (128,)
     cls_dropout: float = 0.2
     mean_sizes: list[list[float]] = field(default_factory=_default_mean_sizes)
     prune_volume_frac: float = 0.002
     # primitive mapping, see shape_detector.model.primitives.primitive_params
     primitive_min_size_frac: float = 0.01
-    primitive_param: str = "exp_linear"
-    shape_anchors: bool = False
+    shape_anchors: bool = True
 
     def primitive_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of :func:`~shape_detector.model.primitives.primitive_params`."""
-        return {"min_frac": float(self.primitive_min_size_frac), "mode": self.primitive_param}
+        return {"min_frac": float(self.primitive_min_size_frac)}
 
     @property
     def num_cls_outputs(self) -> int:
@@ -111,6 +110,7 @@ class ModelConfig:
         return 6 if self.use_color else 3
 
     def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able dict (tuples as lists); :meth:`from_dict` reads it back."""
         d = asdict(self)
         for k, v in d.items():
             if isinstance(v, tuple):
@@ -119,6 +119,7 @@ class ModelConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> "ModelConfig":
+        """Config from a dict of overrides of the defaults; unknown keys are refused."""
         d = dict(d or {})
         names = {f.name: f for f in fields(cls)}
         unknown = set(d) - set(names)
@@ -130,12 +131,6 @@ class ModelConfig:
                 v = tuple(int(x) for x in v)
             kw[k] = v
         cfg = cls(**kw)
-        if cfg.primitive_param not in ("exp_linear", "sigmoid_tanh"):
-            raise ValueError(f"unknown primitive_param {cfg.primitive_param!r}")
-        if cfg.shape_branch not in ("canonical", "shared"):
-            raise ValueError(f"shape_branch must be 'canonical' or 'shared', got {cfg.shape_branch!r}")
-        if cfg.shape_context_widths and cfg.shape_branch != "canonical":
-            raise ValueError("shape_context_widths needs shape_branch='canonical'")
         if len(cfg.mean_sizes) != cfg.num_size_clusters:
             raise ValueError("mean_sizes must have num_size_clusters rows")
         return cfg

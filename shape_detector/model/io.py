@@ -1,14 +1,17 @@
-"""Saving / loading weights (self-describing) and training checkpoints.
+"""Saving / loading weights (versioned, self-describing) and training checkpoints.
 
 A **weights file** (``weights.pt`` / ``best.pt`` / the packaged ``default.pt``) is a
-``torch.save`` of a plain dict::
+``torch.save`` of plain types and tensors only, so it loads with
+``torch.load(path, weights_only=True)`` (no pickled objects)::
 
-    {"format": WEIGHTS_FORMAT, "model_config": ModelConfig.to_dict(),
-     "state_dict": {name: tensor (float16 unless saved otherwise)}, "meta": {...}}
+    {"format": WEIGHTS_FORMAT, "version": WEIGHTS_VERSION,
+     "model_config": ModelConfig.to_dict(),
+     "state_dict": {name: tensor (float16 floats unless saved otherwise)},
+     "meta": {...},          # training config, tasks, epoch, calibration, validation metrics
+     "provenance": {...}}    # see :mod:`.provenance`
 
-``meta`` holds e.g. the training config, tasks, epoch, calibration temperature and
-validation metrics. A **checkpoint** (``checkpoint.pt``) additionally holds the optimiser,
-scheduler, epoch, RNG states and log; it is for resuming, not shipping.
+A **checkpoint** (``checkpoint.pt``) additionally holds the optimiser, epoch, RNG states and
+log; it is for resuming, not shipping (same rules: plain types and tensors).
 """
 
 from __future__ import annotations
@@ -17,12 +20,15 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from .config import ModelConfig
 from .network import FrustumShapeNet
 
-WEIGHTS_FORMAT = "shape_detector.frustum_shape_net.v1"
+WEIGHTS_FORMAT = "shape_detector.frustum_shape_net"
+CHECKPOINT_FORMAT = "shape_detector.frustum_shape_net.checkpoint"
+WEIGHTS_VERSION = 2
 
 
 def default_weights_path() -> Path:
@@ -30,7 +36,27 @@ def default_weights_path() -> Path:
     return Path(__file__).resolve().parents[1] / "weights" / "default.pt"
 
 
-def _atomic_save(obj: Any, path: str | Path) -> None:
+def plain(obj: Any) -> Any:
+    """``obj`` as JSON-like plain types (dict / list / str / int / float / bool / None) and
+    tensors, the only things ``torch.load(weights_only=True)`` accepts back: numpy values
+    become Python numbers or lists, paths strings, tuples lists."""
+    if obj is None or isinstance(obj, (bool, int, float, str, torch.Tensor)):
+        return obj
+    if isinstance(obj, dict):
+        return {(k if isinstance(k, (str, int)) else str(k)): plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [plain(v) for v in obj]
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not storable in a weights file: {type(obj).__name__}")
+
+
+def atomic_save(obj: Any, path: str | Path) -> None:
+    """``torch.save`` to a temporary name, then rename (readers never see half a file)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
@@ -38,21 +64,57 @@ def _atomic_save(obj: Any, path: str | Path) -> None:
     os.replace(tmp, path)
 
 
-def save_weights(
-    model: FrustumShapeNet,
-    path: str | Path,
-    half: bool = True,
-    meta: dict[str, Any] | None = None,
-) -> Path:
-    """Inference-only weights (float16 floats by default, a few MB) with the model config."""
+_atomic_save = atomic_save  # the classifier's saver imports this name
+
+
+def read_blob(path: str | Path) -> dict[str, Any]:
+    """The raw dict of a weights / checkpoint / classifier file, loaded with
+    ``weights_only=True``; a clear error for anything else."""
+    try:
+        blob = torch.load(Path(path), map_location="cpu", weights_only=True)
+    except FileNotFoundError:
+        raise
+    except Exception as e:  # pickle errors of files that are not plain weights
+        raise ValueError(f"{path}: not a shape_detector weights file ({type(e).__name__}: {e})") from e
+    if not isinstance(blob, dict) or "state_dict" not in blob:
+        raise ValueError(f"{path}: not a shape_detector weights file")
+    return blob
+
+
+def half_state(model: torch.nn.Module, half: bool = True) -> dict[str, torch.Tensor]:
+    """The model's state on the CPU, floats as float16 when ``half``."""
     sd = {}
     for k, v in model.state_dict().items():
         v = v.detach().cpu()
         if half and v.is_floating_point():
             v = v.half()
         sd[k] = v.clone()
-    _atomic_save(
-        {"format": WEIGHTS_FORMAT, "model_config": model.config.to_dict(), "state_dict": sd, "meta": dict(meta or {})},
+    return sd
+
+
+def save_weights(
+    model: FrustumShapeNet,
+    path: str | Path,
+    half: bool = True,
+    meta: dict[str, Any] | None = None,
+    provenance: dict[str, Any] | None = None,
+) -> Path:
+    """Inference-only weights (float16 floats by default, a few MB) with the model config,
+    ``meta`` and ``provenance`` (plain types only)."""
+    return save_state(model.config, half_state(model, half), path, meta, provenance)
+
+
+def save_state(
+    config: ModelConfig,
+    state_dict: dict[str, torch.Tensor],
+    path: str | Path,
+    meta: dict[str, Any] | None = None,
+    provenance: dict[str, Any] | None = None,
+) -> Path:
+    """Write a weights file from a config and a state dict (tensors stored as given)."""
+    atomic_save(
+        {"format": WEIGHTS_FORMAT, "version": WEIGHTS_VERSION, "model_config": config.to_dict(),
+         "state_dict": dict(state_dict), "meta": plain(dict(meta or {})), "provenance": plain(dict(provenance or {}))},
         path,
     )
     return Path(path)
@@ -60,35 +122,48 @@ def save_weights(
 
 def model_from_state(blob: dict[str, Any], device: str | torch.device = "cpu") -> FrustumShapeNet:
     """Build the network described by a weights/checkpoint dict and load its state."""
-    mc = dict(blob["model_config"])
-    mc.setdefault("primitive_param", "sigmoid_tanh")  # weights saved before the field existed
-    cfg = ModelConfig.from_dict(mc)
+    cfg = ModelConfig.from_dict(blob["model_config"])
     model = FrustumShapeNet(cfg)
     sd = {k: (v.float() if v.is_floating_point() else v) for k, v in blob["state_dict"].items()}
     model.load_state_dict(sd)
     return model.to(device)
 
 
+def _check_version(blob: dict[str, Any], fmt: str, path: str | Path) -> None:
+    if blob.get("format") != fmt:
+        raise ValueError(f"{path}: format {blob.get('format')!r}, expected {fmt!r}")
+    if blob.get("version") != WEIGHTS_VERSION:
+        raise ValueError(f"{path}: weights version {blob.get('version')!r}, this code reads version "
+                         f"{WEIGHTS_VERSION} (older files: load with the release that wrote them and re-save)")
+
+
 def load_weights(path: str | Path, device: str | torch.device = "cpu") -> tuple[FrustumShapeNet, dict[str, Any]]:
-    """``(model in eval mode, meta)`` from a weights file or a training checkpoint."""
-    blob = torch.load(Path(path), map_location="cpu", weights_only=False)
-    if not isinstance(blob, dict) or "model_config" not in blob or "state_dict" not in blob:
-        raise ValueError(f"{path}: not a shape_detector weights file")
+    """``(model in eval mode, meta)`` from a weights file; ``meta["provenance"]`` is the
+    file's provenance block."""
+    blob = read_blob(path)
+    _check_version(blob, WEIGHTS_FORMAT, path)
     model = model_from_state(blob, device).eval()
-    return model, dict(blob.get("meta", {}))
+    meta = dict(blob.get("meta", {}))
+    meta["provenance"] = dict(blob.get("provenance", {}))
+    return model, meta
 
 
-def save_checkpoint(path: str | Path, model: FrustumShapeNet, **state: Any) -> Path:
-    """Resumable checkpoint: float32 model state, model config and anything in ``state``."""
+def save_checkpoint(path: str | Path, model: torch.nn.Module, **state: Any) -> Path:
+    """Resumable checkpoint: float32 model state, model config and anything in ``state``
+    (plain types, tensors and optimiser state dicts)."""
     blob = {
-        "format": WEIGHTS_FORMAT + ".checkpoint",
+        "format": CHECKPOINT_FORMAT,
+        "version": WEIGHTS_VERSION,
         "model_config": model.config.to_dict(),
         "state_dict": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
     }
-    blob.update(state)
-    _atomic_save(blob, path)
+    blob.update(plain(state))
+    atomic_save(blob, path)
     return Path(path)
 
 
 def load_checkpoint(path: str | Path) -> dict[str, Any]:
-    return torch.load(Path(path), map_location="cpu", weights_only=False)
+    """The dict :func:`save_checkpoint` wrote."""
+    blob = read_blob(path)
+    _check_version(blob, CHECKPOINT_FORMAT, path)
+    return blob

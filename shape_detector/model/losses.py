@@ -118,7 +118,6 @@ def _shape_terms(
     l_nearest: int,
     consistency_per_face: int,
     min_size_frac: float,
-    primitive_mode: str,
 ) -> dict[str, torch.Tensor]:
     """The weighted shape terms of the rows ``idx`` in one ``frame`` (see :func:`compute_losses`)."""
     raw = out["shape_raw"][idx]
@@ -128,14 +127,14 @@ def _shape_terms(
              batch["parts_mask"][idx].bool())
     surface = batch["surface"][idx]
     if frame == "gt_box":
-        prims = primitive_params(raw, gsize, min_size_frac, primitive_mode)
+        prims = primitive_params(raw, gsize, min_size_frac)
         scale = gsize.norm(dim=1)
         occ_box = gsize
     else:
         psize = out["box_size"][idx].detach()
         pn = psize.norm(dim=1, keepdim=True).clamp_min(1e-6)
         gn = gsize.norm(dim=1, keepdim=True).clamp_min(1e-6)
-        prims = primitive_params(raw, psize / pn, min_size_frac, primitive_mode)
+        prims = primitive_params(raw, psize / pn, min_size_frac)
         g3 = gn.unsqueeze(-1)
         parts = (parts[0] / g3, parts[1] / g3, parts[2], parts[3])
         surface = surface / g3
@@ -205,7 +204,6 @@ def compute_losses(
     l_nearest: int = 1,
     consistency_per_face: int = 25,
     min_size_frac: float = 0.01,
-    primitive_mode: str = "exp_linear",
     shape_frame: str = "gt_box",
 ) -> dict[str, torch.Tensor]:
     """Weighted loss terms, their sum under ``"total"``, and a few detached accuracies.
@@ -278,8 +276,7 @@ def compute_losses(
             idx = sh.nonzero().squeeze(1)
             frames = ("gt_box", "predicted_box") if shape_frame == "both" else (shape_frame,)
             for frame in frames:
-                terms = _shape_terms(out, batch, idx, frame, w, l_nearest, consistency_per_face, min_size_frac,
-                                     primitive_mode)
+                terms = _shape_terms(out, batch, idx, frame, w, l_nearest, consistency_per_face, min_size_frac)
                 for k, v in terms.items():
                     losses[k] = losses.get(k, 0.0) + v / len(frames)
 

@@ -17,7 +17,7 @@ Pipeline for a batch of frustums (points in the frustum frame ``F``, see
    with ``box2_widths`` a second box stage (:meth:`FrustumShapeNet.second_box_stage`) refines
    that box from every frustum point seen in its own canonical frame;
    (b) shape head: ``M`` cuboid primitives in the canonical object frame (see
-   :mod:`.primitives`), from the box feature and (``shape_branch="canonical"``) a small
+   :mod:`.primitives`), from the box feature and a small
    PointNet over the object points in the canonical frame of a box (``shape_box``: the GT
    box while training, the predicted box otherwise), divided by the box size, and (with
    ``shape_context_widths``) a PointNet over every frustum point in that frame with the
@@ -58,11 +58,25 @@ def to_unit_box(p: torch.Tensor, center: torch.Tensor, heading: torch.Tensor, si
 
 
 class FrustumShapeNet(nn.Module):
-    #: module-name prefixes whose parameters never reach ``cls_logits``: the class head reads
-    #: only the segmentation and box PointNets' global features (and the mask decides the box
-    #: net's points), so training only these leaves the class probabilities as they were
-    OFF_CLASS_PATH = ("shape_mlp", "shape_ctx_mlp", "shape_head", "shape_anchor", "box_head", "ctx_mlp",
-                      "box2_mlp", "box2_head")
+    #: the network's parts by name, each a set of its child modules / parameters: training
+    #: phases say which parts train (the rest is frozen) by these names
+    MODULE_GROUPS: dict[str, tuple[str, ...]] = {
+        "seg": ("seg_mlp", "seg_head_local", "seg_head_global", "seg_head_bn", "seg_head_mlp", "seg_out"),
+        "seg_head": ("seg_head_local", "seg_head_global", "seg_head_bn", "seg_head_mlp", "seg_out"),
+        "tnet": ("tnet_mlp", "tnet_head"),
+        "box": ("box_mlp", "box_head"),
+        "box_head": ("box_head",),
+        "box_context": ("ctx_mlp",),
+        "box2": ("box2_mlp", "box2_head"),
+        "shape": ("shape_mlp", "shape_head", "shape_anchor"),
+        "shape_context": ("shape_ctx_mlp",),
+        "cls": ("cls_head",),
+    }
+    #: children whose parameters never reach ``cls_logits``: the class head reads only the
+    #: segmentation and box PointNets' global features (and the mask decides the box net's
+    #: points), so training only these leaves the class probabilities as they were
+    OFF_CLASS_PATH = frozenset({"shape_mlp", "shape_ctx_mlp", "shape_head", "shape_anchor", "box_head", "ctx_mlp",
+                                "box2_mlp", "box2_head"})
 
     def __init__(self, config: ModelConfig | None = None) -> None:
         super().__init__()
@@ -101,11 +115,8 @@ class FrustumShapeNet(nn.Module):
             self.box2_head = FCHead(self.box2_mlp.out_channels + feat_c + nc + 3, cfg.box2_fc, 7, bn)
             nn.init.zeros_(self.box2_head.out.weight)
             nn.init.zeros_(self.box2_head.out.bias)
-        shape_in = feat_c + nc
-        self.shape_mlp = None
-        if cfg.shape_branch == "canonical":
-            self.shape_mlp = SharedMLP(3, cfg.shape_widths, bn)
-            shape_in += int(cfg.shape_widths[-1])
+        self.shape_mlp = SharedMLP(3, cfg.shape_widths, bn)
+        shape_in = feat_c + nc + int(cfg.shape_widths[-1])
         # every frustum point in the shape box's unit-cube frame, hard mask as a 4th channel:
         # where the object is not (its feature columns come last in the shape head's input)
         self.shape_ctx_mlp = SharedMLP(4, cfg.shape_context_widths, bn) if cfg.shape_context_widths else None
@@ -129,12 +140,8 @@ class FrustumShapeNet(nn.Module):
             b = torch.zeros(M, 10)
             g = torch.Generator().manual_seed(0)
             spread = (torch.rand(M, 3, generator=g) - 0.5) * 1.6
-            if self.config.primitive_param == "exp_linear":
-                b[:, 0:3] = math.log(0.35)  # 0.35 of the box size
-                b[:, 7:10] = spread * 0.8
-            else:
-                b[:, 0:3] = math.log(0.35 / 0.65)  # sigmoid -> 0.35 of the box size
-                b[:, 7:10] = spread
+            b[:, 0:3] = math.log(0.35)  # 0.35 of the box size
+            b[:, 7:10] = spread * 0.8
             b[:, 3] = 1.0  # quaternion w
             out.bias.copy_(b.reshape(-1))
 
@@ -272,17 +279,15 @@ class FrustumShapeNet(nn.Module):
         box2_res = None
         if self.box2_mlp is not None:
             center, heading, size, box2_res = self.second_box_stage(xyz, fg, feat, one_hot, center_head, heading, size)
-        shape_in = fo
-        if self.shape_mlp is not None:
-            if shape_box is None:
-                sc, sh, ss = center.detach(), heading.detach(), size.detach()
-            else:
-                sc, sh, ss = (t.detach() for t in shape_box)
-            shape_in = torch.cat([fo, self.shape_mlp.forward_max(to_unit_box(obj, sc, sh, ss))], 1)
-            if self.shape_ctx_mlp is not None:
-                qa = to_unit_box(xyz, sc, sh, ss).clamp(-4.0, 4.0)
-                qa = torch.cat([qa, fg.unsqueeze(-1).to(qa.dtype)], -1)
-                shape_in = torch.cat([shape_in, self.shape_ctx_mlp.forward_max(qa)], 1)
+        if shape_box is None:
+            sc, sh, ss = center.detach(), heading.detach(), size.detach()
+        else:
+            sc, sh, ss = (t.detach() for t in shape_box)
+        shape_in = torch.cat([fo, self.shape_mlp.forward_max(to_unit_box(obj, sc, sh, ss))], 1)
+        if self.shape_ctx_mlp is not None:
+            qa = to_unit_box(xyz, sc, sh, ss).clamp(-4.0, 4.0)
+            qa = torch.cat([qa, fg.unsqueeze(-1).to(qa.dtype)], -1)
+            shape_in = torch.cat([shape_in, self.shape_ctx_mlp.forward_max(qa)], 1)
         cls_logits = self.cls_head(torch.cat([seg_glob, feat], 1))
         shape_raw = self.shape_head(shape_in)
         if self.shape_anchor is not None:
@@ -329,5 +334,19 @@ class FrustumShapeNet(nn.Module):
         self._fused = True
         return self
 
+    def part_names(self, names: list[str] | tuple[str, ...]) -> set[str]:
+        """The child modules / parameters named by ``names`` (group names of
+        :attr:`MODULE_GROUPS` or exact child names); an unknown or absent name is an error."""
+        out: set[str] = set()
+        for n in names:
+            kids = self.MODULE_GROUPS.get(str(n), (str(n),))
+            for k in kids:
+                if k not in self._modules and k not in self._parameters:
+                    raise ValueError(f"no network part named {k!r} (from {n!r})")
+                if getattr(self, k) is not None:
+                    out.add(k)
+        return out
+
     def num_parameters(self) -> int:
+        """Number of parameters (all, trainable or not)."""
         return sum(p.numel() for p in self.parameters())

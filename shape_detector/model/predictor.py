@@ -22,17 +22,20 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
 
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
-import torch
 
 from ..classes import CLASS_TO_ID, CLASSES
 from ..frustum import Frustum
-from ..geometry import rot_z, stretch_cuboids, wrap_angle
+from ..geometry import rot_z, wrap_angle
 from ..types import Cuboid
 from .config import PRECISIONS, ModelConfig
-from .io import default_weights_path, load_weights
-from .network import FrustumShapeNet
-from .traced import TracedForward
+from .batching import MIRROR_CONFLICT, concat as _concat, merge_mirrored, repeat_first as _repeat_first, stack as _stack
+from .onnx_backend import resolve_backend
+
+if TYPE_CHECKING:
+    import torch
 
 BACKGROUND = "background"
 
@@ -41,7 +44,7 @@ BACKGROUND = "background"
 AUTO_BF16_MIN_BATCH = 4
 
 
-def bf16_min_batch(precision: str, device: torch.device) -> int | None:
+def bf16_min_batch(precision: str, device: Any) -> int | None:
     """The batch size from which a forward runs in bfloat16 under ``precision``: None =
     never (``"fp32"``, or ``"auto"`` on a device without AMX), 0 = always (``"bf16"``),
     :data:`AUTO_BF16_MIN_BATCH` for ``"auto"`` on a CPU with AMX."""
@@ -49,7 +52,7 @@ def bf16_min_batch(precision: str, device: torch.device) -> int | None:
         raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
     if precision == "bf16":
         return 0
-    if precision == "auto" and device.type == "cpu" and cpu_has_amx():
+    if precision == "auto" and getattr(device, "type", str(device)) == "cpu" and cpu_has_amx():
         return AUTO_BF16_MIN_BATCH
     return None
 
@@ -57,6 +60,8 @@ def bf16_min_batch(precision: str, device: torch.device) -> int | None:
 def cpu_has_amx() -> bool:
     """Whether this CPU has AMX tiles (bfloat16 matrix units); False when torch cannot tell."""
     try:
+        import torch
+
         return bool(torch.cpu._is_amx_tile_supported())
     except Exception:  # noqa: BLE001 - a private torch helper: absent means unknown
         return False
@@ -91,70 +96,16 @@ class FrustumPrediction:
     center_F: np.ndarray = field(default_factory=lambda: np.zeros(3))
     heading_F: float = 0.0
     primitives_canonical: list[Cuboid] = field(default_factory=list)
-    seg_features: tuple[torch.Tensor, torch.Tensor] | None = field(default=None, repr=False, compare=False)
+    seg_features: tuple[Any, Any] | None = field(default=None, repr=False, compare=False)
 
 
-def resolve_device(device: str | torch.device | None) -> torch.device:
+def resolve_device(device: "str | torch.device | None") -> "torch.device":
     """``"auto"``/None -> cuda when available else cpu; otherwise ``torch.device(device)``."""
+    import torch
+
     if device is None or str(device) == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(device)
-
-
-#: the two passes of the mirrored test-time augmentation disagree about the box axes when
-#: their headings differ by more than this modulo pi (radians); see :func:`merge_mirrored`
-MIRROR_CONFLICT = np.pi / 4
-
-_FLIP_Y = np.diag([1.0, -1.0, 1.0]).astype(np.float32)
-
-
-def merge_mirrored(arr: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Merge the predictions on B frustums (first half of ``arr``, frame F) with those on the
-    same frustums mirrored x -> -x (second half), as :meth:`FrustumPredictor.forward_arrays`
-    arrays of batch 2B -> batch B.
-
-    The mirrored centre gets its x negated and its heading ``t`` becomes ``pi - t``; its
-    primitives (box-canonical) get their y negated. Class / segmentation probabilities are
-    always averaged. The boxes:
-
-    * headings within :data:`MIRROR_CONFLICT` of each other modulo pi: centres, sizes and
-      headings are averaged (headings modulo pi when the two point opposite ways: the first
-      prediction keeps the front); the primitives are the first prediction's, stretched to
-      the averaged size;
-    * otherwise the two passes disagree about the box axes (a box turned by ~90 degrees;
-      sizes are not swapped to match, so it is not the same box), and the average would be
-      a box ~45 degrees off both: the pass with the more confident heading bin
-      (``heading_conf``) is kept whole.
-    """
-    n = arr["center"].shape[0] // 2
-    a = {k: v[:n] for k, v in arr.items()}
-    b = {k: v[n:] for k, v in arr.items()}
-    out = dict(a)
-    cb = b["center"].copy()
-    cb[:, 0] *= -1.0
-    hb = wrap_angle(np.pi - b["heading"])
-    d = wrap_angle(hb - a["heading"])
-    d = np.where(np.abs(d) > 0.5 * np.pi, wrap_angle(d + np.pi), d)  # opposite fronts: modulo pi
-    conflict = np.abs(d) > MIRROR_CONFLICT
-    take_b = conflict & (b["heading_conf"] > a["heading_conf"])
-    keep_a = conflict & ~take_b
-    out["center"] = np.where(take_b[:, None], cb, np.where(keep_a[:, None], a["center"], 0.5 * (a["center"] + cb)))
-    out["heading"] = np.where(take_b, hb, wrap_angle(a["heading"] + np.where(conflict, 0.0, 0.5 * d))).astype(
-        a["heading"].dtype
-    )
-    out["size"] = np.where(take_b[:, None], b["size"], np.where(keep_a[:, None], a["size"], 0.5 * (a["size"] + b["size"])))
-    for key in ("probs", "seg_prob", "fg_score", "heading_conf"):
-        out[key] = 0.5 * (a[key] + b[key])
-    # primitives: the first prediction's, or the mirrored one's (y -> -y in the box frame) where it is kept
-    base_c, base_s, base_r = a["prim_center"].copy(), a["prim_size"], a["prim_rotation"].copy()
-    base_size = np.where(take_b[:, None], b["size"], a["size"])
-    base_c[take_b] = b["prim_center"][take_b] * _FLIP_Y.diagonal()
-    base_s = np.where(take_b[:, None, None], b["prim_size"], base_s)
-    base_r[take_b] = _FLIP_Y @ b["prim_rotation"][take_b] @ _FLIP_Y
-    ratio = out["size"] / np.maximum(base_size, 1e-9)  # (B, 3)
-    out["prim_rotation"] = base_r
-    out["prim_center"], out["prim_size"] = stretch_cuboids(base_c, base_s, base_r, ratio[:, None, :])
-    return out
 
 
 def refined_score(class_prob: float, objectness: float) -> float:
@@ -165,45 +116,59 @@ def refined_score(class_prob: float, objectness: float) -> float:
     return float(np.sqrt(max(class_prob, 0.0) * max(objectness, 0.0)))
 
 
+def default_weights_path() -> Path:
+    """The packaged weights ``shape_detector/weights/default.pt`` (may not exist); as
+    :func:`shape_detector.model.io.default_weights_path`, without importing torch."""
+    return Path(__file__).resolve().parents[1] / "weights" / "default.pt"
+
+
+__all__ = ["FrustumPrediction", "FrustumPredictor", "MIRROR_CONFLICT", "merge_mirrored", "refined_score"]
+
+
 class FrustumPredictor:
     """Loads weights once; :meth:`predict` runs one batched forward per call.
 
     ``weights``: a weights/checkpoint file; None uses the packaged
     ``shape_detector/weights/default.pt`` (falls back to a randomly initialised network
     with a warning when that file is missing -- outputs are then meaningless).
-    ``device``: ``"cpu"``, ``"cuda"`` or ``"auto"``; ``num_threads`` sets torch's CPU threads.
+    ``device``: ``"cpu"``, ``"cuda"`` or ``"auto"``. ``backend``: ``"auto"`` (default: ONNX
+    Runtime where installed, see :mod:`.onnx_backend`), ``"onnxruntime"`` or ``"torch"``; the
+    onnxruntime graphs are exported once per weights file and cached (:mod:`.onnx_export`),
+    and a predictor that finds them cached never imports torch. ``num_threads``: intra-op
+    threads of torch / of each onnxruntime session (None: torch's default, one session thread).
     ``workers`` > 1 (CPU): a batch of at least ``2 * min_chunk`` frustums is split into
-    that many chunks run on as many Python threads, each op single-threaded -- data
+    that many chunks run on as many Python threads, each single-threaded -- data
     parallelism without OpenMP's barrier waits (which make 2 intra-op threads slower than
-    1 on a loaded 2-core machine). ``precision``: ``"fp32"`` (default), ``"bf16"``
-    (bfloat16 autocast: about 2x faster on CPUs with AMX / AVX512-BF16 for large batches,
-    much slower on those without; boxes differ slightly, see the README's speed section) or
-    ``"auto"`` (bf16 for batches of at least :data:`AUTO_BF16_MIN_BATCH` frustums on a CPU
-    with AMX, else fp32). ``trace`` (CPU): run the forward through frozen TorchScript graphs
-    (:mod:`.traced`; same outputs, less overhead, and no GIL held while they run, which lets
-    the node's two pipeline threads overlap); False = eager.
+    1 on a loaded 2-core machine); both backends release the GIL while a graph runs.
+    ``precision`` (torch): ``"fp32"`` (default), ``"bf16"`` (bfloat16 autocast: about 2x
+    faster on CPUs with AMX / AVX512-BF16 for large batches, much slower on those without)
+    or ``"auto"`` (bf16 for batches of at least :data:`AUTO_BF16_MIN_BATCH` frustums on a CPU
+    with AMX, else fp32); onnxruntime runs fp32. ``trace`` (torch, CPU): frozen TorchScript
+    graphs (:mod:`.traced`); False = eager (and ``backend="auto"`` then means torch).
     """
 
     def __init__(
         self,
         weights: str | Path | None = None,
-        device: str | torch.device = "cpu",
+        device: "str | torch.device" = "cpu",
         num_threads: int | None = None,
         workers: int = 1,
         min_chunk: int = 3,
         precision: str = "fp32",
         trace: bool = True,
+        backend: str = "auto",
     ) -> None:
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
         self.precision = precision
-        if num_threads is not None:
-            torch.set_num_threads(int(num_threads))
-        self.device = resolve_device(device)
-        self._trace = bool(trace) and self.device.type == "cpu"
-        #: the batch size from which forwards run in bfloat16 (None: never, 0: always)
-        self.bf16_min_batch = bf16_min_batch(precision, self.device)
-        self.workers = max(1, int(workers)) if self.device.type == "cpu" else 1
+        self.num_threads = num_threads
+        self.backend = resolve_backend(backend, precision, trace)
+        self._trace = bool(trace)
+        self.workers = max(1, int(workers))
         self.min_chunk = max(1, int(min_chunk))
         self._pool = None
+        self._model = None
+        self._ort = None
         self.meta: dict = {}
         if weights is None:
             p = default_weights_path()
@@ -211,26 +176,81 @@ class FrustumPredictor:
                 weights = p
             else:
                 warnings.warn(f"no packaged weights at {p}; using a randomly initialised network", stacklevel=2)
-        if weights is None:
+        self.weights_path = None if weights is None else Path(weights)
+        if self.backend == "onnxruntime":
+            try:
+                self._init_onnxruntime(device)
+                return
+            except Exception as e:  # noqa: BLE001 - any export / session failure: torch serves
+                warnings.warn(f"onnxruntime backend unavailable ({type(e).__name__}: {e}); using torch", stacklevel=2)
+                self.backend, self._ort = "torch", None
+        self._init_torch(device)
+
+    def _load_model(self) -> tuple[Any, dict]:
+        """(fused eval-mode network, meta) of ``weights_path`` (random when None); imports torch."""
+        import torch
+
+        from .io import load_weights
+        from .network import FrustumShapeNet
+
+        if self.weights_path is None:
             torch.manual_seed(0)
-            self.model = FrustumShapeNet(ModelConfig()).to(self.device).eval().fuse_batchnorm()
-            self._forward = TracedForward(self.model, enabled=self._trace)
-            self.weights_path = None
+            model, meta = FrustumShapeNet(ModelConfig()).eval(), {}
         else:
-            self.load_weights(weights)
+            model, meta = load_weights(self.weights_path, "cpu")
+        return model.fuse_batchnorm(), meta  # inference only: BatchNorm folded into the linear layers
+
+    def _init_torch(self, device: Any) -> None:
+        import torch
+
+        from .traced import TracedForward
+
+        if self.num_threads is not None:
+            torch.set_num_threads(int(self.num_threads))
+        self.device = resolve_device(device)
+        if self.device.type != "cpu":
+            self.workers = 1
+        self.bf16_min_batch = bf16_min_batch(self.precision, self.device)
+        if self._model is None:
+            self._model, self.meta = self._load_model()
+        self._model = self._model.to(self.device)
+        self._forward = TracedForward(self._model, enabled=self._trace and self.device.type == "cpu")
+
+    def _init_onnxruntime(self, device: Any) -> None:
+        from .onnx_backend import OrtFrustumForward
+        from .onnx_export import frustum_graphs
+
+        folder, info, self._model = frustum_graphs(self.weights_path, self._load_model)
+        self.meta = dict(info.get("meta") or {})
+        if self.meta.get("tasks") is None:
+            self.meta.pop("tasks", None)
+        self._config = ModelConfig.from_dict(info["model_config"])
+        self.device = "cpu" if str(device) == "cpu" else str(device)
+        self.bf16_min_batch = None
+        self.graph_folder = folder
+        self._ort = OrtFrustumForward(folder, int(self.num_threads or 1), self.device)
 
     def load_weights(self, path: str | Path) -> None:
-        self.model, self.meta = load_weights(path, self.device)
-        self.model.fuse_batchnorm()  # inference only: BatchNorm folded into the linear layers
-        self._forward = TracedForward(self.model, enabled=self._trace)
-        self.weights_path = Path(path)
+        """Load another weights file (torch backend: in place; onnxruntime: its graphs)."""
+        self.weights_path, self._model = Path(path), None
+        if self.backend == "onnxruntime":
+            self._init_onnxruntime(self.device)
+        else:
+            self._init_torch(self.device)
+
+    @property
+    def model(self) -> Any:
+        """The (BatchNorm-folded) torch network; loaded on first use under onnxruntime."""
+        if self._model is None:
+            self._model, self.meta = self._load_model()
+        return self._model
 
     def warm_up(self, max_batch: int = 1) -> None:
-        """Trace now, on dummy frustums, the graphs a frame may need (first pass and
-        feature-reusing second pass, in each precision this predictor uses, with caches of
-        either dtype), so that no camera frame pays the tracing; then run both passes once for
-        every batch of 1 to ``max_batch`` frustums: the first call with a new batch size is
-        slower (oneDNN builds its kernels per shape, eager or traced alike)."""
+        """Build now, on dummy frustums, what a frame may need (torch: trace the first pass
+        and the feature-reusing second pass, in each precision this predictor uses, with
+        caches of either dtype), so that no camera frame pays for it; then run both passes
+        once for every batch of 1 to ``max_batch`` frustums (oneDNN and onnxruntime prepare
+        kernels per shape)."""
         n, nc = self.num_points, self.config.num_classes
         sizes = [1] if self.bf16_min_batch is None else [max(1, self.bf16_min_batch)]
         if self.bf16_min_batch:  # auto: small batches in fp32, large ones in bfloat16
@@ -241,7 +261,7 @@ class FrustumPredictor:
             caches.append((out["seg_glob"], out["seg_local"]))
         for b in sizes:
             for glob, local in caches:
-                cache = (glob[:1].expand(b, *glob.shape[1:]), local[:1].expand(b, *local.shape[1:]))
+                cache = (_repeat_first(glob, b), _repeat_first(local, b))
                 self.forward_arrays(np.zeros((b, n, 6), np.float32), np.eye(b, nc, dtype=np.float32), cache)
         dummy = Frustum(np.zeros((n, 6), np.float32), np.arange(n), 0, 0.0, np.eye(3))
         for b in range(1, int(max_batch) + 1):
@@ -250,7 +270,7 @@ class FrustumPredictor:
 
     @property
     def config(self) -> ModelConfig:
-        return self.model.config
+        return self._config if self._ort is not None else self._model.config
 
     @property
     def num_points(self) -> int:
@@ -263,26 +283,38 @@ class FrustumPredictor:
         return tasks is None or "cls" in tasks
 
     # --------------------------------------------------------------------------
-    @torch.inference_mode()
     def forward_arrays(
         self,
         points: np.ndarray,
         one_hot: np.ndarray,
-        seg_cache: tuple[torch.Tensor, torch.Tensor] | None = None,
+        seg_cache: tuple[Any, Any] | None = None,
         keep_features: bool = False,
     ) -> dict[str, np.ndarray]:
         """Raw batched forward on (B,N,6) points / (B,C) one-hot; decoded frame-F arrays.
 
         ``seg_cache``: the ``seg_glob`` / ``seg_local`` of an earlier call on the same points
         (the segmentation PointNet is skipped); ``keep_features`` adds them to the result
-        (torch tensors, not arrays).
+        (numpy arrays under onnxruntime, torch tensors under torch).
         """
-        pts = torch.as_tensor(np.asarray(points, np.float32), device=self.device)
-        oh = torch.as_tensor(np.asarray(one_hot, np.float32), device=self.device)
-        bf16 = self.bf16_min_batch is not None and pts.shape[0] >= self.bf16_min_batch
-        out = self._forward(pts, oh, seg_cache, bf16)
-        seg_glob, seg_local = out.pop("seg_glob"), out.pop("seg_local")
-        arrays: dict = {k: (v if v.device.type == "cpu" else v.cpu()).numpy() for k, v in out.items()}
+        if self._ort is not None:
+            out = self._ort(points, one_hot, seg_cache)
+            if not keep_features:
+                out.pop("seg_glob"), out.pop("seg_local")
+            return out
+        return self._forward_torch(points, one_hot, seg_cache, keep_features)
+
+    def _forward_torch(self, points, one_hot, seg_cache, keep_features) -> dict[str, Any]:
+        import torch
+
+        with torch.inference_mode():
+            pts = torch.as_tensor(np.asarray(points, np.float32), device=self.device)
+            oh = torch.as_tensor(np.asarray(one_hot, np.float32), device=self.device)
+            if seg_cache is not None:
+                seg_cache = tuple(torch.as_tensor(c, device=self.device) for c in seg_cache)
+            bf16 = self.bf16_min_batch is not None and pts.shape[0] >= self.bf16_min_batch
+            out = self._forward(pts, oh, seg_cache, bf16)
+            seg_glob, seg_local = out.pop("seg_glob"), out.pop("seg_local")
+            arrays: dict = {k: (v if v.device.type == "cpu" else v.cpu()).numpy() for k, v in out.items()}
         if keep_features:
             arrays["seg_glob"], arrays["seg_local"] = seg_glob, seg_local
         return arrays
@@ -293,7 +325,7 @@ class FrustumPredictor:
         class_ids: Sequence[int | None] | None = None,
         mirror: bool = False,
         keep_features: bool = False,
-        seg_features: Sequence[tuple[torch.Tensor, torch.Tensor] | None] | None = None,
+        seg_features: Sequence[tuple[Any, Any] | None] | None = None,
     ) -> list[FrustumPrediction]:
         """Predictions for ``frustums`` (class ids: index into CLASSES, or None = unknown).
 
@@ -324,25 +356,21 @@ class FrustumPredictor:
             pts = np.stack([frustums[i].points[:, :6] for i in idx]).astype(np.float32)
             oh = np.zeros((len(idx), nc), np.float32)
             for j, i in enumerate(idx):
-                c = class_ids[i]
-                if c is not None:
-                    oh[j, int(c)] = 1.0
+                if class_ids[i] is not None:
+                    oh[j, int(class_ids[i])] = 1.0
             cache = None
             if seg_features is not None and not mirror and all(seg_features[i] is not None for i in idx):
-                cache = (
-                    torch.stack([seg_features[i][0] for i in idx]),  # type: ignore[index]
-                    torch.stack([seg_features[i][1] for i in idx]),  # type: ignore[index]
-                )
+                cache = (_stack([seg_features[i][0] for i in idx]), _stack([seg_features[i][1] for i in idx]))  # type: ignore[index]
             if mirror:
                 flipped = pts.copy()
                 flipped[..., 0] *= -1.0
                 arr = merge_mirrored(self._forward_parallel(np.concatenate([pts, flipped]), np.concatenate([oh, oh])))
             else:
                 arr = self._forward_parallel(pts, oh, cache, keep)
-            for j, i in enumerate(idx):
-                results[i] = self._decode_one(frustums[i], class_ids[i], arr, j)
+            for j, p in enumerate(self._decode([frustums[i] for i in idx], [class_ids[i] for i in idx], arr)):
+                results[idx[j]] = p
                 if keep:
-                    results[i].seg_features = (arr["seg_glob"][j], arr["seg_local"][j])  # type: ignore[union-attr]
+                    p.seg_features = (arr["seg_glob"][j], arr["seg_local"][j])
         return results  # type: ignore[return-value]
 
     def refine(
@@ -388,9 +416,9 @@ class FrustumPredictor:
         self,
         pts: np.ndarray,
         oh: np.ndarray,
-        seg_cache: tuple[torch.Tensor, torch.Tensor] | None = None,
+        seg_cache: tuple[Any, Any] | None = None,
         keep_features: bool = False,
-    ) -> dict[str, np.ndarray]:
+    ) -> dict[str, Any]:
         """:meth:`forward_arrays`, split over ``self.workers`` threads for large batches."""
         n = pts.shape[0]
         k = min(self.workers, n // self.min_chunk)
@@ -412,54 +440,59 @@ class FrustumPredictor:
             for a, b in zip(bounds[:-1], bounds[1:])
         ]
         parts = [f.result() for f in futs]
-        return {
-            key: (torch.cat if isinstance(parts[0][key], torch.Tensor) else np.concatenate)([p[key] for p in parts], 0)
-            for key in parts[0]
-        }
+        return {key: _concat([p[key] for p in parts]) for key in parts[0]}
 
-    def _decode_one(self, fr: Frustum, cid: int | None, arr: dict[str, np.ndarray], j: int) -> FrustumPrediction:
-        cfg = self.config
-        nc = cfg.num_classes
-        probs = arr["probs"][j].astype(np.float64)
-        objectness = float(1.0 - probs[nc])
-        if cid is not None:
-            cname = CLASSES[int(cid)]
-            score = objectness
-        else:
-            k = int(np.argmax(probs[:nc]))
-            cname = CLASSES[k]
-            score = float(probs[k])
+    def _decode(self, frs: Sequence[Frustum], cids: Sequence[int | None], arr: dict[str, np.ndarray]) -> list[FrustumPrediction]:
+        """One :class:`FrustumPrediction` per row of ``arr`` (frame F -> camera), the
+        rotations, centres and primitive transforms computed for the whole batch at once."""
+        nc = self.config.num_classes
+        B = len(frs)
+        probs = np.asarray(arr["probs"][:B], np.float64)
+        objectness = 1.0 - probs[:, nc]
+        best = np.argmax(probs[:, :nc], axis=1)
+        given = np.array([c is not None for c in cids])
+        cls = np.where(given, [int(c) if c is not None else 0 for c in cids], best)
+        score = np.where(given, objectness, probs[np.arange(B), best])
         if not self.has_class_head:
-            score = float(arr["fg_score"][j])
-        if fr.valid <= 0:
-            score = 0.0
-        R_cf = fr.R_cf
-        center_F = arr["center"][j].astype(np.float64)
-        heading_F = float(arr["heading"][j])
-        size = arr["size"][j].astype(np.float64)
-        R_box = R_cf @ rot_z(heading_F)
-        center = R_cf @ center_F
+            score = np.asarray(arr["fg_score"][:B], np.float64)
+        valid = np.array([int(f.valid) for f in frs])
+        score = np.clip(np.where(valid > 0, score, 0.0), 0.0, 1.0)
+        phi = np.array([float(f.phi) for f in frs])
+        R_cf = np.stack([f.R_cu for f in frs]).astype(np.float64) @ rot_z(-phi).reshape(B, 3, 3)
+        center_F = np.asarray(arr["center"][:B], np.float64)
+        heading_F = np.asarray(arr["heading"][:B], np.float64)
+        size = np.asarray(arr["size"][:B], np.float64)
+        R_box = R_cf @ rot_z(heading_F).reshape(B, 3, 3)
+        center = np.einsum("bij,bj->bi", R_cf, center_F)
+        pc = np.asarray(arr["prim_center"][:B], np.float64)
+        ps = np.asarray(arr["prim_size"][:B], np.float64)
+        pr = np.asarray(arr["prim_rotation"][:B], np.float64)
         # primitives: prune low-volume ones (keep at least the largest)
-        pc, ps, pr = arr["prim_center"][j], arr["prim_size"][j], arr["prim_rotation"][j]
-        vol = np.prod(ps.astype(np.float64), axis=1)
-        keep = vol >= cfg.prune_volume_frac * float(np.prod(size))
-        if not keep.any():
-            keep[int(np.argmax(vol))] = True
-        canon = [Cuboid(pc[m], ps[m], pr[m]) for m in np.nonzero(keep)[0]]
-        prims = [c.transformed(R_box, center) for c in canon]
-        return FrustumPrediction(
-            class_name=cname,
-            class_probs=probs,
-            score=float(np.clip(score, 0.0, 1.0)),
-            center=center,
-            size=size,
-            rotation=R_box,
-            heading_U=float(wrap_angle(heading_F - fr.phi)),
-            primitives=prims,
-            seg_prob=arr["seg_prob"][j].astype(np.float32),
-            num_points_valid=int(fr.valid),
-            objectness=objectness,
-            center_F=center_F,
-            heading_F=heading_F,
-            primitives_canonical=canon,
-        )
+        vol = np.prod(ps, axis=2)
+        keep = vol >= self.config.prune_volume_frac * np.prod(size, axis=1, keepdims=True)
+        keep[np.arange(B), np.argmax(vol, axis=1)] |= ~keep.any(1)
+        cam_c = np.einsum("bij,bmj->bmi", R_box, pc) + center[:, None, :]
+        cam_r = np.einsum("bij,bmjk->bmik", R_box, pr)
+        heading_U = wrap_angle(heading_F - phi)
+        seg_prob = np.asarray(arr["seg_prob"][:B], np.float32)
+        out = []
+        for j in range(B):
+            ms = np.nonzero(keep[j])[0]
+            out.append(FrustumPrediction(
+                class_name=CLASSES[int(cls[j])],
+                class_probs=probs[j],
+                score=float(score[j]),
+                center=center[j],
+                size=size[j],
+                rotation=R_box[j],
+                heading_U=float(heading_U[j]),
+                primitives=[Cuboid(cam_c[j, m], ps[j, m], cam_r[j, m]) for m in ms],
+                seg_prob=seg_prob[j],
+                num_points_valid=int(valid[j]),
+                objectness=float(objectness[j]),
+                center_F=center_F[j],
+                heading_F=float(heading_F[j]),
+                primitives_canonical=[Cuboid(pc[j, m], ps[j, m], pr[j, m]) for m in ms],
+            ))
+        return out
+

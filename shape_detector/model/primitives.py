@@ -8,15 +8,13 @@ centre, x along the box heading, z up, units **metres** (not normalised). Each o
 ``M`` primitives has a size (3,), a rotation (3,3, columns = its axes; from a unit
 quaternion, full 3D) and a translation (3,). The raw head output (10 per primitive:
 ``size(3) | quaternion w x y z (4) | translation(3)``) is mapped relative to the box size
-``s`` (GT box while training, predicted box at inference); ``ModelConfig.primitive_param``
-selects the mapping (``f = primitive_min_size_frac``)::
+``s`` (GT box while training, predicted box at inference), with
+``f = ModelConfig.primitive_min_size_frac``::
 
-    "exp_linear" (default):  size = s * (f + exp(min(a, log 1.25), soft))   trans = s / 2 * b
-    "sigmoid_tanh" (first version, kept for old weights):
-                             size = s * (f + (1 - f) * sigmoid(a))          trans = s / 2 * tanh(b)
+    size = s * (f + exp(min(a, log 1.25), soft))   trans = s / 2 * b
     R = quat_to_rotmat(q / |q|)
 
-``exp_linear`` avoids the saturating sigmoid / tanh: furniture parts are thin slabs and
+The mapping is not saturating (no sigmoid / tanh): furniture parts are thin slabs and
 touch the box boundary, exactly where sigmoid / tanh gradients vanish.
 
 Loss distances are divided by the box diagonal (scale-free, matching a metric
@@ -57,51 +55,38 @@ def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
     )
 
 
-PRIMITIVE_PARAMS = ("exp_linear", "sigmoid_tanh")
 _LOG_MAX_SIZE = float(np.log(1.25))
 
 
 def primitive_params(
-    raw: torch.Tensor, box_size: torch.Tensor, min_frac: float = 0.01, mode: str = "exp_linear"
+    raw: torch.Tensor, box_size: torch.Tensor, min_frac: float = 0.01
 ) -> dict[str, torch.Tensor]:
     """Cuboids from the raw shape-head output ``raw`` (B, M, 10) and box sizes (B, 3).
 
     Returns ``center`` (B,M,3), ``size`` (B,M,3), ``rotation`` (B,M,3,3), canonical frame.
     """
     s = box_size.unsqueeze(1)
-    if mode == "exp_linear":
-        a = _LOG_MAX_SIZE - torch.nn.functional.softplus(_LOG_MAX_SIZE - raw[..., 0:3])
-        size = s * (min_frac + torch.exp(a))
-        trans = 0.5 * s * raw[..., 7:10]
-    elif mode == "sigmoid_tanh":
-        size = s * (min_frac + (1 - min_frac) * torch.sigmoid(raw[..., 0:3]))
-        trans = 0.5 * s * torch.tanh(raw[..., 7:10])
-    else:
-        raise ValueError(f"unknown primitive parametrisation {mode!r}")
+    a = _LOG_MAX_SIZE - torch.nn.functional.softplus(_LOG_MAX_SIZE - raw[..., 0:3])
+    size = s * (min_frac + torch.exp(a))
+    trans = 0.5 * s * raw[..., 7:10]
     rot = quat_to_rotmat(raw[..., 3:7])
     return {"center": trans, "size": size, "rotation": rot}
 
 
 def primitive_raw(
-    center: np.ndarray, size: np.ndarray, min_frac: float = 0.01, mode: str = "exp_linear", eps: float = 1e-3
+    center: np.ndarray, size: np.ndarray, min_frac: float = 0.01, eps: float = 1e-3
 ) -> np.ndarray:
     """The inverse of :func:`primitive_params` for box-aligned cuboids: raw values (..., 10)
     for box-relative centres ``center`` and sizes ``size`` (..., 3) (fractions of the box
     size; the box is ``[-0.5, 0.5]^3``), identity rotation. Sizes are clipped to
     ``[min_frac + eps, 1]`` and centres to ``+-(0.5 - eps)`` so the raw values stay finite."""
-    if mode not in PRIMITIVE_PARAMS:
-        raise ValueError(f"unknown primitive parametrisation {mode!r}")
     size = np.clip(np.asarray(size, np.float64), min_frac + eps, 1.0)
     center = np.clip(np.asarray(center, np.float64), -0.5 + eps, 0.5 - eps)
     raw = np.zeros(size.shape[:-1] + (10,))
-    if mode == "exp_linear":  # size = s (f + exp(a')), a' = log 1.25 - softplus(log 1.25 - a): invert both
-        a_soft = np.log(np.clip(size - min_frac, eps, 1.25 - eps))
-        raw[..., 0:3] = _LOG_MAX_SIZE - np.log(np.expm1(_LOG_MAX_SIZE - a_soft))
-        raw[..., 7:10] = 2.0 * center
-    else:
-        q = np.clip((size - min_frac) / (1.0 - min_frac), eps, 1.0 - eps)
-        raw[..., 0:3] = np.log(q / (1.0 - q))
-        raw[..., 7:10] = np.arctanh(2.0 * center)
+    # size = s (f + exp(a')), a' = log 1.25 - softplus(log 1.25 - a): invert both
+    a_soft = np.log(np.clip(size - min_frac, eps, 1.25 - eps))
+    raw[..., 0:3] = _LOG_MAX_SIZE - np.log(np.expm1(_LOG_MAX_SIZE - a_soft))
+    raw[..., 7:10] = 2.0 * center
     raw[..., 3] = 1.0  # quaternion (1, 0, 0, 0)
     return raw
 

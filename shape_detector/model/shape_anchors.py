@@ -119,9 +119,9 @@ def class_templates(
     return lo, hi, found
 
 
-def templates_to_raw(lo: np.ndarray, hi: np.ndarray, min_frac: float = 0.01, mode: str = "exp_linear") -> np.ndarray:
+def templates_to_raw(lo: np.ndarray, hi: np.ndarray, min_frac: float = 0.01) -> np.ndarray:
     """Raw shape-head values (..., M, 10) whose cuboids (:func:`.primitives.primitive_params`
     with a box of any size) are the box-relative bounds ``lo``, ``hi`` (..., M, 3):
     identity rotation, centre ``(lo + hi) / 2``, size ``hi - lo`` (times the box size)."""
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    return primitive_raw(0.5 * (lo + hi), hi - lo, min_frac, mode)
+    return primitive_raw(0.5 * (lo + hi), hi - lo, min_frac)

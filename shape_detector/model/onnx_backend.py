@@ -1,0 +1,143 @@
+"""ONNX Runtime inference of the exported graphs (:mod:`.onnx_export`), and the backend choice.
+
+``backend``: ``"onnxruntime"`` runs the graphs in ONNX Runtime (CPU execution provider;
+TensorRT / CUDA providers first where installed and the device is not ``"cpu"``),
+``"torch"`` runs the PyTorch module (TorchScript graphs or eager), ``"auto"`` picks
+onnxruntime when it imports, else torch with one warning. ``"auto"`` also picks torch for
+what only torch does: ``precision="bf16"`` and the eager forward (``trace=False``, which
+module hooks and debuggers need). The environment variable ``SHAPE_DETECTOR_BACKEND``
+(``onnxruntime`` / ``torch``) overrides ``"auto"`` (for A/B runs of whole programs).
+
+Nothing here imports torch.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import threading
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .onnx_export import GRAPH_FILES, HEAD_OUTPUTS
+
+BACKENDS = ("auto", "onnxruntime", "torch")
+_warned_missing = False
+_warn_lock = threading.Lock()
+
+
+def ort_available() -> bool:
+    """Whether ``onnxruntime`` imports."""
+    try:
+        importlib.import_module("onnxruntime")
+    except ImportError:
+        return False
+    return True
+
+
+def resolve_backend(backend: str = "auto", precision: str = "fp32", trace: bool = True) -> str:
+    """``"onnxruntime"`` or ``"torch"`` for a ``backend`` setting (see the module docstring).
+    ``"onnxruntime"`` asked for but not installed raises ImportError; ``"auto"`` without it
+    warns once per process and gives ``"torch"``."""
+    global _warned_missing
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if backend == "auto":
+        env = os.environ.get("SHAPE_DETECTOR_BACKEND", "").strip()
+        if env in ("onnxruntime", "torch"):
+            backend = env
+    if backend == "torch":
+        return "torch"
+    if backend == "onnxruntime":
+        if not ort_available():
+            raise ImportError("backend='onnxruntime' needs the onnxruntime package (pip install onnxruntime)")
+        return "onnxruntime"
+    if precision == "bf16" or not trace:
+        return "torch"
+    if ort_available():
+        return "onnxruntime"
+    with _warn_lock:
+        if not _warned_missing:
+            _warned_missing = True
+            warnings.warn("onnxruntime is not installed: running the networks in PyTorch (slower on most CPUs)",
+                          stacklevel=3)
+    return "torch"
+
+
+def providers_for(device: str) -> list[str]:
+    """Execution providers for ``device`` (``"cpu"``, ``"cuda"``, ``"auto"``): CPU only for
+    ``"cpu"``, else TensorRT / CUDA where this onnxruntime has them, then CPU."""
+    import onnxruntime as ort
+
+    if str(device) == "cpu":
+        return ["CPUExecutionProvider"]
+    have = set(ort.get_available_providers())
+    gpu = [p for p in ("TensorrtExecutionProvider", "CUDAExecutionProvider") if p in have]
+    return gpu + ["CPUExecutionProvider"]
+
+
+def make_session(path: str | Path, threads: int = 1, device: str = "cpu", spinning: bool = False) -> Any:
+    """An ``onnxruntime.InferenceSession`` for ``path``: ``threads`` intra-op threads, one
+    inter-op thread, all graph optimisations; ``spinning`` False (default) lets idle pool
+    threads sleep instead of spinning, which on a shared 2-core machine would take the core
+    the other pipeline stage needs."""
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = max(1, int(threads))
+    so.inter_op_num_threads = 1
+    so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    so.log_severity_level = 3
+    so.add_session_config_entry("session.intra_op.allow_spinning", "1" if spinning else "0")
+    return ort.InferenceSession(str(path), so, providers=providers_for(device))
+
+
+class OrtFrustumForward:
+    """The frustum network's inference forward in onnxruntime: ``forward(points, one_hot,
+    seg_cache)`` -> the dict of :meth:`FrustumPredictor.forward_arrays
+    <shape_detector.model.predictor.FrustumPredictor.forward_arrays>` (numpy; ``seg_glob`` /
+    ``seg_local`` included). ``folder`` holds ``frustum_seg.onnx`` / ``frustum_head.onnx``.
+    Sessions are thread-safe: chunks of a batch may run on several Python threads (the GIL
+    is released while a graph runs)."""
+
+    def __init__(self, folder: str | Path, threads: int = 1, device: str = "cpu") -> None:
+        folder = Path(folder)
+        self.seg = make_session(folder / GRAPH_FILES["frustum_seg"], threads, device)
+        self.head = make_session(folder / GRAPH_FILES["frustum_head"], threads, device)
+
+    def __call__(
+        self, points: np.ndarray, one_hot: np.ndarray, seg_cache: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> dict[str, np.ndarray]:
+        pts = np.ascontiguousarray(points, np.float32)
+        if seg_cache is None:
+            glob, local = self.seg.run(None, {"points": pts})
+        else:
+            glob, local = (np.ascontiguousarray(_numpy(t), np.float32) for t in seg_cache)
+        outs = self.head.run(None, {"points": pts, "one_hot": np.ascontiguousarray(one_hot, np.float32),
+                                    "seg_glob": glob, "seg_local": local})
+        res = dict(zip(HEAD_OUTPUTS, outs))
+        res["seg_glob"], res["seg_local"] = glob, local
+        return res
+
+
+class OrtClassifier:
+    """The proposal classifier's calibrated probabilities in onnxruntime: ``(points (B,N,7),
+    globals (B,G))`` float32 -> ``(B, C+1)``."""
+
+    def __init__(self, path: str | Path, threads: int = 1, device: str = "cpu") -> None:
+        self.session = make_session(path, threads, device)
+
+    def __call__(self, points: np.ndarray, globals_: np.ndarray) -> np.ndarray:
+        return self.session.run(None, {"points": np.ascontiguousarray(points, np.float32),
+                                       "globals": np.ascontiguousarray(globals_, np.float32)})[0]
+
+
+def _numpy(t: Any) -> np.ndarray:
+    """A numpy view of an array or a (CPU) torch tensor, without importing torch."""
+    if isinstance(t, np.ndarray):
+        return t
+    return t.detach().cpu().numpy() if hasattr(t, "detach") else np.asarray(t)
