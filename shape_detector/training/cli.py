@@ -1,64 +1,71 @@
-"""``shape-detector train``: build (or reuse) the frustum dataset and train the network.
+"""``shape-detector train``: run a training recipe, or one ad-hoc training run.
 
-Example::
+A recipe (see :mod:`.recipe`; the shipped weights' is ``recipes/shipped.json``)::
 
-    shape-detector train --config shape_detector/training/configs/default.json \\
-        --data data/train --out runs/multitask --seed 0 --max-minutes 35
+    shape-detector train --recipe shipped --data-root data --out runs/shipped \\
+        [--phase NAME ...] [--max-minutes M] [--export shape_detector/weights]
 
-``--data`` / ``--val-data`` are generator shard directories (read with
-``shape_detector.synth.dataset.iter_frames``) or frustum caches (``.npz`` written by
-:func:`shape_detector.training.frustum_dataset.save`). Built datasets are cached in the
-run directory (``frustums_<train|val>_<hash>.npz``) and reused on ``--resume`` / re-runs.
-Without ``--val-data``, ``val_fraction`` of the training frames is held out.
-``--tasks`` selects the loss groups: ``box,shape,cls`` (end-to-end multi-task, default),
-``box,cls`` (detection only), ``shape,cls`` / ``shape`` (shape-only baseline; segmentation
-is always trained).
+runs its phases in order; each is skipped when its weights exist with a matching key and
+resumes from its checkpoint otherwise. ``--max-minutes`` stops the run (exit status 3;
+the same command continues it), it never changes what a finished phase computes. Under
+``torchrun --nproc_per_node N shape-detector train ...`` the network phases run
+data-parallel (gloo on CPUs, nccl on GPUs); see docs/training.md.
+
+One ad-hoc run (experiments) takes a TrainConfig JSON (default: the recipe base's
+``defaults``) and data directories or frustum ``.npz`` files::
+
+    shape-detector train --config my.json --data data/train --val-data data/val --out runs/x
 """
 
 from __future__ import annotations
 
 import argparse
-import hashlib
-import itertools
 import json
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
-DEFAULT_CONFIG = Path(__file__).resolve().parent / "configs" / "default.json"
-
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--config", type=Path, default=None, help=f"training config JSON (default {DEFAULT_CONFIG.name})")
-    p.add_argument("--data", type=Path, required=True, nargs="+",
-                   help="shard directories of generated frames and/or frustum .npz files (concatenated)")
-    p.add_argument("--val-data", type=Path, default=None, help="held-out shard directory or frustum .npz")
-    p.add_argument("--out", type=Path, required=True, help="run directory")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--epochs", type=int, default=None, help="override the config's epochs")
-    p.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoint.pt")
-    p.add_argument("--init", type=Path, default=None, metavar="WEIGHTS",
-                   help="start from these weights (.pt; same model config) instead of a random init: fine-tuning")
-    p.add_argument("--tasks", default=None, help="comma list of box,shape,cls (default: config)")
+    """Arguments of ``train``."""
+    p.add_argument("--recipe", default=None, help="recipe JSON (a path, or a name under training/recipes)")
+    p.add_argument("--phase", action="append", default=None, metavar="NAME",
+                   help="run only this phase (repeatable; its parents must have finished)")
+    p.add_argument("--data-root", type=Path, default=Path("data"), help="where the recipe's data sets live")
+    p.add_argument("--export", type=Path, default=None, metavar="DIR",
+                   help="after the recipe, copy the results it exports (e.g. default.pt) into DIR")
+    p.add_argument("--config", type=Path, default=None, help="ad-hoc run: training config JSON")
+    p.add_argument("--data", type=Path, nargs="+", default=None,
+                   help="ad-hoc run: shard directories and/or frustum .npz files (concatenated)")
+    p.add_argument("--val-data", type=Path, default=None, help="ad-hoc run: held-out shard directory or .npz")
+    p.add_argument("--out", type=Path, default=None, help="run directory (recipe default runs/<recipe name>)")
+    p.add_argument("--seed", type=int, default=0, help="ad-hoc run: seed")
+    p.add_argument("--epochs", type=int, default=None, help="ad-hoc run: override the config's epochs")
+    p.add_argument("--resume", action="store_true", help="ad-hoc run: continue from RUN_DIR/checkpoint.pt")
+    p.add_argument("--init", type=Path, default=None, metavar="WEIGHTS", help="ad-hoc run: start from these weights")
+    p.add_argument("--tasks", default=None, help="ad-hoc run: comma list of box,shape,cls")
     p.add_argument("--device", default="auto", help="auto | cpu | cuda[:i]")
-    p.add_argument("--max-minutes", type=float, default=None, help="training time budget (epochs are planned to fit)")
-    p.add_argument("--max-frames", type=int, default=None, help="use at most this many training frames")
-    p.add_argument("--max-val-frames", type=int, default=None, help="use at most this many validation frames")
-    p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: config num_threads)")
+    p.add_argument("--max-minutes", type=float, default=None,
+                   help="stop after this long (resumable: run the same command again)")
+    p.add_argument("--max-frames", type=int, default=None, help="ad-hoc run: at most this many training frames")
+    p.add_argument("--max-val-frames", type=int, default=None, help="ad-hoc run: at most this many val frames")
+    p.add_argument("--threads", type=int, default=None, help="ad-hoc run: torch CPU threads")
     p.add_argument("--set", action="append", default=[], metavar="KEY=JSON",
-                   help="override a config entry, e.g. --set batch_size=64 --set model.num_points=256")
+                   help="ad-hoc run: override a config entry, e.g. --set batch_size=64 --set model.num_points=256")
 
 
 def load_config(path: Path | None, overrides: list[str] | None = None):
-    from .train import TrainConfig
+    """TrainConfig of an ad-hoc run: ``path`` (default: the base recipe's defaults) with
+    ``KEY=JSON`` overrides (dotted keys reach into ``model`` / ``data``)."""
+    from .config import TrainConfig
+    from .recipe import load_recipe
 
-    d: dict[str, Any] = {}
-    p = path or DEFAULT_CONFIG
-    if p.is_file():
-        d = json.loads(p.read_text())
-    elif path is not None:
-        raise FileNotFoundError(path)
+    if path is not None:
+        if not path.is_file():
+            raise FileNotFoundError(path)
+        d: dict[str, Any] = json.loads(path.read_text())
+    else:
+        d = load_recipe("base")["defaults"]
     for item in overrides or []:
         key, _, val = item.partition("=")
         try:
@@ -73,53 +80,42 @@ def load_config(path: Path | None, overrides: list[str] | None = None):
     return TrainConfig.from_dict(d)
 
 
-def _listing_hash(path: Path, extra: dict[str, Any]) -> str:
-    h = hashlib.sha1(json.dumps(extra, sort_keys=True).encode())
-    h.update(str(path.resolve()).encode())
-    files = sorted(path.rglob("*")) if path.is_dir() else [path]
-    for f in files:
-        if f.is_file():
-            st = f.stat()
-            h.update(f"{f.relative_to(path) if path.is_dir() else f.name}:{st.st_size}:{int(st.st_mtime)}".encode())
-    return h.hexdigest()[:12]
-
-
-def get_dataset(path: Path, cfg, out_dir: Path, tag: str, max_frames: int | None, seed: int) -> dict:
-    """Frustum dataset of ``path`` (npz as is, or built from shards and cached in ``out_dir``)."""
-    from . import frustum_dataset as fds
-
-    if path.is_file() and path.suffix == ".npz":
-        return fds.load(path)
-    data_cfg = fds.FrustumDatasetConfig.from_dict(cfg.data)
-    data_cfg.num_points = int(cfg.model_config().num_points)
-    if tag == "val":
-        data_cfg.augment_copies = 1
-    data_cfg.rng_seed = int(data_cfg.rng_seed) + (0 if tag == "train" else 1000)
-    key = _listing_hash(path, {"data": data_cfg.to_dict(), "max_frames": max_frames})
-    cache = out_dir / f"frustums_{tag}_{key}.npz"
-    if cache.is_file():
-        print(f"{tag} frustums: cached {cache}")
-        return fds.load(cache)
-    from ..synth.dataset import iter_frames
-
-    t0 = time.time()
-    frames = iter_frames(path)
-    if max_frames:
-        frames = itertools.islice(frames, int(max_frames))
-    print(f"{tag} frustums: building from {path} ...", flush=True)
-    ds = fds.build_frustum_dataset(frames, config=data_cfg, num_points=data_cfg.num_points,
-                                   augment_copies=data_cfg.augment_copies, rng_seed=data_cfg.rng_seed,
-                                   negatives_per_frame=data_cfg.negatives_per_frame, progress=True)
-    fds.save(ds, cache)
-    print(f"{tag} frustums: {fds.summary(ds)} in {time.time() - t0:.0f}s -> {cache}", flush=True)
-    return ds
-
-
-def main(args: argparse.Namespace) -> int:
-    import torch
-
-    from . import frustum_dataset as fds
+def _resolve_device(name: str):
     from ..model.predictor import resolve_device
+
+    return resolve_device(name)
+
+
+def main_recipe(args: argparse.Namespace) -> int:
+    """Run a recipe (see the module docstring); exit 3 when the time budget stopped it."""
+    from . import distributed as ddp
+    from .recipe import load_recipe
+    from .runner import Stopped, export, run_recipe
+
+    r = load_recipe(args.recipe)
+    env, dev = ddp.setup(args.device)
+    device = dev or _resolve_device(args.device)
+    out = args.out or Path("runs") / Path(r["file"]).stem
+    say = (lambda s: print(s, flush=True)) if env.is_main else (lambda s: None)
+    say(f"recipe {r['file']} (sha256 {r['sha256'][:12]}): {len(r['phases'])} phases -> {out}")
+    try:
+        results = run_recipe(r, out, args.data_root, args.phase, device, args.max_minutes, say)
+    except Stopped as e:
+        say(f"stopped in phase {e} by --max-minutes; run the same command again to continue")
+        return 3
+    for res in results:
+        say(f"  {res['phase']:<16} {res.get('file', '?'):<14} {res.get('seconds', 0) / 60:7.1f} min  "
+            f"sha256 {str(res.get('sha256'))[:12]}")
+    if args.export is not None and env.is_main:
+        export(r, out, args.export, say)
+    return 0
+
+
+def main_single(args: argparse.Namespace) -> int:
+    """One ad-hoc training run."""
+    from . import distributed as ddp
+    from . import frustum_dataset as fds
+    from .data_cache import get_frustums
     from .train import train
 
     cfg = load_config(args.config, args.set)
@@ -129,34 +125,43 @@ def main(args: argparse.Namespace) -> int:
         cfg.tasks = args.tasks
     if args.threads:
         cfg.num_threads = int(args.threads)
-    device = resolve_device(args.device)
-    if device.type == "cpu" and cfg.num_threads:
-        torch.set_num_threads(int(cfg.num_threads))
+    env, dev = ddp.setup(args.device)
+    device = dev or _resolve_device(args.device)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(cfg.to_dict(), indent=1))
-    parts = [get_dataset(d, cfg, out, "train", args.max_frames, args.seed) for d in args.data]
+    npts = cfg.model_config().num_points
+    parts = [get_frustums(d, cfg.data, npts, out, "train", args.max_frames) for d in args.data]
     train_ds = parts[0] if len(parts) == 1 else fds.concat(parts)
     if args.val_data is not None:
-        val_ds = get_dataset(args.val_data, cfg, out, "val", args.max_val_frames, args.seed)
+        val_ds = get_frustums(args.val_data, cfg.data, npts, out, "val", args.max_val_frames)
     else:
         train_ds, val_ds = fds.split_by_frame(train_ds, cfg.val_fraction, seed=12345)
-    print(f"train: {fds.summary(train_ds)}\nval:   {fds.summary(val_ds)}", flush=True)
-    final = train(
-        cfg, train_ds, val_ds, out, seed=args.seed, device=device, resume=args.resume,
-        max_minutes=args.max_minutes, print_fn=lambda s: print(s, flush=True), init_weights=args.init,
-        extra_meta={"data": [str(d) for d in args.data], "init": str(args.init) if args.init else None, "val_data": str(args.val_data) if args.val_data else None},
-    )
+    final = train(cfg, train_ds, val_ds, out, seed=args.seed, device=device, resume=args.resume,
+                  max_minutes=args.max_minutes, print_fn=lambda s: print(s, flush=True), init_weights=args.init,
+                  extra_meta={"data": [d.name for d in args.data], "init": args.init.name if args.init else None})
     best = final.get("best.pt", {}).get("metrics", {})
-    if best:
-        keys = ("seg_acc", "box_iou", "box_acc25", "box_acc50", "box_iou_agnostic", "shape_iou", "shape_iou_gtbox",
-                "shape_surface_dist", "shape_surface_dist_gtbox", "cls_acc_agnostic")
+    if best and env.is_main:
+        keys = ("seg_acc", "box_iou", "box_iou_agnostic", "shape_iou", "shape_iou_gtbox", "cls_acc_agnostic")
         print("best.pt: " + " ".join(f"{k} {best[k]:.3f}" for k in keys if k in best))
-    print(f"outputs in {out}")
-    return 0
+    return 3 if final.get("stopped_early") else 0
+
+
+def main(args: argparse.Namespace) -> int:
+    """``train``: a recipe with ``--recipe``, else one ad-hoc run (needs ``--data`` and ``--out``)."""
+    try:
+        if args.recipe is not None:
+            return main_recipe(args)
+        if not args.data or args.out is None:
+            print("shape-detector train: give --recipe FILE, or --data and --out for one run", file=sys.stderr)
+            return 2
+        return main_single(args)
+    except (FileNotFoundError, ValueError, KeyError, RuntimeError) as e:
+        print(f"shape-detector train: {e}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":  # pragma: no cover
-    p = argparse.ArgumentParser()
-    configure_parser(p)
-    sys.exit(main(p.parse_args()))
+    parser = argparse.ArgumentParser()
+    configure_parser(parser)
+    sys.exit(main(parser.parse_args()))

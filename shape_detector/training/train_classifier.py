@@ -108,9 +108,10 @@ def train_classifier(
     config: ClassifierTrainConfig | None = None,
     model_config: ClassifierConfig | None = None,
     log: Callable[[str], None] = print,
+    provenance: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Train on the candidate arrays ``ds``; writes ``out`` (the best epoch's weights, by
-    held-out NLL, temperature-calibrated) and returns the log."""
+    held-out NLL, temperature-calibrated, with ``provenance`` and its metrics) and returns the log."""
     cfg = config or ClassifierTrainConfig()
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(cfg.threads)
@@ -166,5 +167,6 @@ def train_classifier(
         if metrics["nll"] < best["nll"]:
             best = dict(row)
             save_classifier(model, out, meta={"train_config": asdict(cfg), "history": history, "best": best,
-                                              "features": list(GLOBAL_FEATURES)})
+                                              "features": list(GLOBAL_FEATURES)},
+                            provenance={**(provenance or {}), "metrics": best})
     return {"best": best, "history": history}

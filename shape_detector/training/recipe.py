@@ -1,0 +1,135 @@
+"""Training recipes as data: JSON files that list the phases of a training.
+
+A recipe file may say ``"inherits": "base.json"`` (a path relative to itself): the base is
+loaded first (recursively) and the file deep-merged over it (dicts merge key by key, any
+other value, lists included, replaces). The resolved recipe has::
+
+    datasets      name -> {"seed", "frames", "frames_per_shard", "rgb_format", "synth": {SynthConfig}}
+    frustums      name -> {"dataset": name, "extract": {FrustumDatasetConfig overrides},
+                           "tag": "train" | "val"}
+    defaults      TrainConfig fields shared by every network phase
+    phase_overrides  TrainConfig fields merged over every network phase's own (tiny test runs)
+    phases        [phase, ...] in training order
+
+A network phase: ``name``; ``init`` (an earlier phase, or null for a fresh network);
+``train_data`` (frustum set names, concatenated); ``val_data`` (one frustum set);
+``seed``; ``keep`` ("best": the best validation epoch's weights, or "last"); ``train``
+(TrainConfig fields over ``defaults``: model, epochs, lr, trainable parts, tasks, threads).
+A classifier phase (``"kind": "classifier"``): ``network`` (the phase whose weights propose
+and first-pass the candidates), ``datasets``, ``seed``, ``proposals``, ``workers``, ``train``
+(ClassifierTrainConfig fields). Nothing in a recipe is a wall-clock budget.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+from typing import Any
+
+from .config import TrainConfig
+from .provenance import sha256_json
+
+RECIPES_DIR = Path(__file__).resolve().parent / "recipes"
+_PHASE_KEYS = {"name", "kind", "comment", "init", "train_data", "val_data", "seed", "keep", "train",
+               "network", "datasets", "proposals", "workers", "max_frames"}
+
+
+def deep_merge(base: Any, over: Any) -> Any:
+    """``over`` merged into a copy of ``base``: dicts key by key, anything else replaced."""
+    if isinstance(base, dict) and isinstance(over, dict):
+        out = copy.deepcopy(base)
+        for k, v in over.items():
+            out[k] = deep_merge(out[k], v) if k in out else copy.deepcopy(v)
+        return out
+    return copy.deepcopy(over)
+
+
+def _load_raw(path: Path, seen: tuple[Path, ...]) -> dict[str, Any]:
+    path = path.resolve()
+    if path in seen:
+        raise ValueError(f"recipe inheritance loops through {path}")
+    if not path.is_file():
+        raise FileNotFoundError(f"no recipe file {path}")
+    try:
+        d = json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: not valid JSON ({e})") from e
+    parent = d.pop("inherits", None)
+    if parent is None:
+        return d
+    return deep_merge(_load_raw((path.parent / parent), seen + (path,)), d)
+
+
+def resolve_path(name: str | Path) -> Path:
+    """A recipe file by path, or by name under the packaged ``recipes/`` folder."""
+    p = Path(name)
+    if p.is_file():
+        return p
+    for cand in (RECIPES_DIR / p, RECIPES_DIR / f"{p}.json"):
+        if cand.is_file():
+            return cand
+    raise FileNotFoundError(f"no recipe {name!r} (neither a file nor one of {sorted(RECIPES_DIR.glob('*.json'))})")
+
+
+def load_recipe(path: str | Path) -> dict[str, Any]:
+    """The resolved recipe (inheritance applied, checked); ``sha256`` holds the hash of its
+    resolved content and ``file`` its file name."""
+    p = resolve_path(path)
+    r = _load_raw(p, ())
+    r.setdefault("datasets", {})
+    r.setdefault("frustums", {})
+    r.setdefault("defaults", {})
+    r.setdefault("phase_overrides", {})
+    r.setdefault("phases", [])
+    check(r)
+    r["sha256"] = sha256_json({k: v for k, v in r.items() if k not in ("comment", "description")})
+    r["file"] = p.name
+    return r
+
+
+def check(r: dict[str, Any]) -> None:
+    """Refuse a recipe whose phases name unknown phases, data or settings (one clear error)."""
+    names: list[str] = []
+    for ph in r["phases"]:
+        name = ph.get("name")
+        if not name or name in names:
+            raise ValueError(f"phase names must be unique and non-empty: {name!r}")
+        bad = set(ph) - _PHASE_KEYS
+        if bad:
+            raise ValueError(f"phase {name}: unknown keys {sorted(bad)}")
+        if ph.get("kind", "network") == "classifier":
+            if ph.get("network") not in names:
+                raise ValueError(f"phase {name}: network {ph.get('network')!r} is not an earlier phase")
+            for d in ph.get("datasets", []):
+                if d not in r["datasets"]:
+                    raise ValueError(f"phase {name}: unknown data set {d!r}")
+        else:
+            if ph.get("init") is not None and ph["init"] not in names:
+                raise ValueError(f"phase {name}: init {ph['init']!r} is not an earlier phase")
+            for f in list(ph.get("train_data", [])) + [ph.get("val_data")]:
+                if f is not None and f not in r["frustums"]:
+                    raise ValueError(f"phase {name}: unknown frustum set {f!r}")
+            if not ph.get("train_data"):
+                raise ValueError(f"phase {name}: no train_data")
+            if ph.get("keep", "best") not in ("best", "last"):
+                raise ValueError(f"phase {name}: keep must be 'best' or 'last'")
+            phase_train_config(r, ph)  # unknown TrainConfig keys fail here
+        names.append(name)
+    for fname, f in r["frustums"].items():
+        if f.get("dataset") not in r["datasets"]:
+            raise ValueError(f"frustum set {fname}: unknown data set {f.get('dataset')!r}")
+
+
+def phase(r: dict[str, Any], name: str) -> dict[str, Any]:
+    """The phase called ``name``."""
+    for ph in r["phases"]:
+        if ph["name"] == name:
+            return ph
+    raise KeyError(f"no phase {name!r} (phases: {[p['name'] for p in r['phases']]})")
+
+
+def phase_train_config(r: dict[str, Any], ph: dict[str, Any]) -> TrainConfig:
+    """A network phase's TrainConfig: ``defaults``, the phase's ``train``, then ``phase_overrides``."""
+    d = deep_merge(deep_merge(r["defaults"], ph.get("train", {})), r["phase_overrides"])
+    return TrainConfig.from_dict(d)

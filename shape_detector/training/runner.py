@@ -1,0 +1,230 @@
+"""Run a recipe's phases in order, each resumable, each writing weights with provenance.
+
+Layout under ``out``::
+
+    cache/                      frustum caches (content-keyed, shared by the phases)
+    <phase>/phase.json          the phase's key (hash of everything that decides its result)
+    <phase>/checkpoint.pt ...   the run (see :mod:`.train`)
+    <phase>/result.json         written when the phase finished: result file, its sha256, seconds
+
+A phase whose ``result.json`` carries the current key (and whose result file still has the
+recorded sha256) is skipped; one with a checkpoint under the current key resumes; one whose
+key changed (recipe, data, parents or code version) starts again.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+from . import distributed as ddp
+from .data_cache import data_identity, ensure_dataset, frustum_config, frustum_key, get_frustums
+from .provenance import dataset_identity, make_provenance, sha256_file, sha256_json
+from .recipe import deep_merge, phase_train_config
+
+#: bump when the training code changes what a phase computes from the same inputs
+PHASE_CODE_VERSION = 1
+_RUN_FILES = ("checkpoint.pt", "weights.pt", "best.pt", "result.json", "val_metrics.json", "classifier.pt")
+
+
+class Stopped(Exception):
+    """A time budget stopped a phase; running the recipe again continues it."""
+
+
+def phase_result(out: Path, name: str) -> dict[str, Any] | None:
+    """The ``result.json`` of a finished phase, else None."""
+    p = Path(out) / name / "result.json"
+    return json.loads(p.read_text()) if p.is_file() else None
+
+
+def _is_done(out: Path, name: str, key: str) -> bool:
+    res = phase_result(out, name)
+    if res is None or res.get("phase_key") != key:
+        return False
+    f = Path(out) / name / res["file"]
+    return f.is_file() and sha256_file(f) == res["sha256"]
+
+
+def _prepare_phase_dir(d: Path, key: str, say: Callable[[str], None]) -> bool:
+    """Make ``d`` the phase's directory for ``key``; returns whether a checkpoint can resume."""
+    d.mkdir(parents=True, exist_ok=True)
+    pj = d / "phase.json"
+    old = json.loads(pj.read_text()).get("phase_key") if pj.is_file() else None
+    if old != key:
+        if old is not None:
+            say(f"{d.name}: recipe, data or parents changed since the last run; starting the phase again")
+        for f in _RUN_FILES:
+            (d / f).unlink(missing_ok=True)
+    pj.write_text(json.dumps({"phase_key": key}, indent=1))
+    return old == key and (d / "checkpoint.pt").is_file()
+
+
+def _parents(out: Path, names: list[str]) -> list[dict[str, Any]]:
+    parents = []
+    for n in names:
+        res = phase_result(out, n)
+        if res is None:
+            raise RuntimeError(f"phase {n!r} has not finished (run the recipe without --phase, or that phase first)")
+        parents.append({"phase": n, "file": f"{n}/{res['file']}", "sha256": res["sha256"]})
+    return parents
+
+
+def _on_rank0_first(env: ddp.DistEnv, fn: Callable[[], Any]) -> Any:
+    """``fn`` on rank 0, then on the other ranks (who then find what rank 0 wrote)."""
+    if env.is_main:
+        v = fn()
+        ddp.barrier(env)
+        return v
+    ddp.barrier(env)
+    return fn()
+
+
+def _frustum_sets(r: dict[str, Any], names: list[str], data_root: Path, cache: Path, cfg, env,
+                  say: Callable[[str], None]) -> tuple[list[dict], list[str]]:
+    """The frustum sets ``names`` (built or cached; extraction = the phase's ``data`` settings
+    with the set's ``extract`` over them) and their content keys."""
+    sets, keys = [], []
+    num_points = cfg.model_config().num_points
+    for n in names:
+        spec = r["frustums"][n]
+        ds_name = spec["dataset"]
+        src = _on_rank0_first(env, lambda: ensure_dataset(data_root, ds_name, r["datasets"][ds_name], say=say))
+        tag = spec.get("tag", "train")
+        extract = deep_merge(cfg.data, spec.get("extract", {}))
+        keys.append(frustum_key(src, frustum_config(extract, num_points, tag), spec.get("max_frames")))
+        sets.append(_on_rank0_first(env, lambda: get_frustums(src, extract, num_points, cache, tag,
+                                                              spec.get("max_frames"), say=say)))
+    return sets, keys
+
+
+def run_network_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_root: Path, device,
+                      max_minutes: float | None, say: Callable[[str], None]) -> dict[str, Any] | None:
+    """Train one network phase (or skip it when done); returns its result record."""
+    from . import frustum_dataset as fds
+    from .train import train
+
+    env = ddp.current()
+    cfg = phase_train_config(r, ph)
+    cache = out / "cache"
+    tr_sets, tr_keys = _frustum_sets(r, list(ph["train_data"]), data_root, cache, cfg, env, say)
+    va_sets, va_keys = _frustum_sets(r, [ph["val_data"]], data_root, cache, cfg, env, say) \
+        if ph.get("val_data") else ([None], [None])
+    parents = _parents(out, [ph["init"]] if ph.get("init") else [])
+    key = sha256_json({"phase": {k: v for k, v in ph.items() if k != "comment"}, "train_config": cfg.to_dict(),
+                       "frustums": tr_keys + va_keys, "parents": [p["sha256"] for p in parents],
+                       "code": PHASE_CODE_VERSION})
+    d = out / ph["name"]
+    if _is_done(out, ph["name"], key):
+        say(f"phase {ph['name']}: done (result {phase_result(out, ph['name'])['file']}, key matches); skipped")
+        return phase_result(out, ph["name"])
+    resume = _on_rank0_first(env, lambda: _prepare_phase_dir(d, key, say) if env.is_main else
+                             (d / "checkpoint.pt").is_file())
+    data_sets = sorted({r["frustums"][n]["dataset"] for n in list(ph["train_data"]) + [ph.get("val_data")] if n})
+    prov = make_provenance(ph["name"], recipe=r["file"], recipe_sha256=r["sha256"], parents=parents,
+                           data=[{**dataset_identity(data_root / n), "path": n} for n in data_sets],
+                           world_size=env.world_size, phase_key=key, seed=int(ph.get("seed", 0)))
+    train_ds = tr_sets[0] if len(tr_sets) == 1 else fds.concat(tr_sets)
+    say(f"phase {ph['name']}: {'resuming' if resume else 'training'} ({cfg.epochs} epochs, lr {cfg.lr}, "
+        f"trainable {cfg.trainable or 'all'})")
+    t0 = time.time()
+    init = out / parents[0]["file"] if parents else None
+    final = train(cfg, train_ds, va_sets[0], d, seed=int(ph.get("seed", 0)), device=device, resume=resume,
+                  max_minutes=max_minutes, print_fn=say, init_weights=init, provenance=prov,
+                  extra_meta={"phase": ph["name"], "recipe": r["file"]})
+    if final.get("stopped_early"):
+        raise Stopped(ph["name"])
+    return _on_rank0_first(env, lambda: _write_result(d, ph.get("keep", "best"), key, time.time() - t0)
+                           if env.is_main else phase_result(out, ph["name"]))
+
+
+def _write_result(d: Path, keep: str, key: str, seconds: float) -> dict[str, Any]:
+    name = "best.pt" if keep == "best" and (d / "best.pt").is_file() else "weights.pt"
+    res = {"file": name, "sha256": sha256_file(d / name), "phase_key": key, "seconds": round(seconds, 1)}
+    (d / "result.json").write_text(json.dumps(res, indent=1))
+    return res
+
+
+def run_classifier_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_root: Path,
+                         say: Callable[[str], None]) -> dict[str, Any] | None:
+    """Train the proposal classifier on the candidates of phase ``network``'s weights (rank 0
+    only: the classifier is small; the other ranks wait)."""
+    env = ddp.current()
+    if not env.is_main:
+        ddp.barrier(env)
+        return phase_result(out, ph["name"])
+    try:
+        return _classifier_phase(r, ph, out, data_root, say)
+    finally:
+        ddp.barrier(env)
+
+
+def _classifier_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_root: Path,
+                      say: Callable[[str], None]) -> dict[str, Any]:
+    from .classifier_cli import build_all, load_candidates
+    from .train_classifier import ClassifierTrainConfig, train_classifier
+
+    srcs = [ensure_dataset(data_root, n, r["datasets"][n], say=say) for n in ph["datasets"]]
+    parents = _parents(out, [ph["network"]])
+    train_d = {**ph.get("train", {}), **r.get("classifier_overrides", {}), "seed": int(ph.get("seed", 0))}
+    cfg = ClassifierTrainConfig(**train_d)
+    cand_key = sha256_json({"network": parents[0]["sha256"], "data": [data_identity(s) for s in srcs],
+                            "proposals": ph.get("proposals", 20), "max_frames": ph.get("max_frames")})[:16]
+    key = sha256_json({"phase": {k: v for k, v in ph.items() if k != "comment"}, "train": train_d,
+                       "candidates": cand_key, "code": PHASE_CODE_VERSION})
+    d = out / ph["name"]
+    if _is_done(out, ph["name"], key):
+        say(f"phase {ph['name']}: done (key matches); skipped")
+        return phase_result(out, ph["name"])
+    _prepare_phase_dir(d, key, say)
+    t0 = time.time()
+    paths = build_all(srcs, out / "cache" / f"candidates_{cand_key}", out / parents[0]["file"], ph.get("max_frames"),
+                      int(ph.get("workers", 2)), int(ph.get("proposals", 20)))
+    prov = make_provenance(ph["name"], recipe=r["file"], recipe_sha256=r["sha256"], parents=parents,
+                           data=[{**dataset_identity(s), "path": s.name} for s in srcs], phase_key=key,
+                           seed=cfg.seed)
+    result = train_classifier(load_candidates(paths), d / "classifier.pt", cfg, log=say, provenance=prov)
+    say(f"phase {ph['name']}: best epoch {result['best'].get('epoch')}")
+    res = {"file": "classifier.pt", "sha256": sha256_file(d / "classifier.pt"), "phase_key": key,
+           "seconds": round(time.time() - t0, 1)}
+    (d / "result.json").write_text(json.dumps(res, indent=1))
+    return res
+
+
+def run_recipe(r: dict[str, Any], out: str | Path, data_root: str | Path, only: list[str] | None = None,
+               device="cpu", max_minutes: float | None = None, say: Callable[[str], None] = print) -> list[dict]:
+    """Run the phases of the resolved recipe ``r`` in order (``only``: just those, whose
+    parents must have finished). Returns the result records; raises :class:`Stopped` when
+    the time budget ran out (run again to continue)."""
+    out, data_root = Path(out), Path(data_root)
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.time()
+    results = []
+    for ph in r["phases"]:
+        if only and ph["name"] not in only:
+            continue
+        left = None if max_minutes is None else max_minutes - (time.time() - t_start) / 60.0
+        if left is not None and left <= 0:
+            raise Stopped(ph["name"])
+        if ph.get("kind", "network") == "classifier":
+            res = run_classifier_phase(r, ph, out, data_root, say)
+        else:
+            res = run_network_phase(r, ph, out, data_root, device, left, say)
+        results.append({"phase": ph["name"], **(res or {})})
+    return results
+
+
+def export(r: dict[str, Any], out: str | Path, dest: str | Path, say: Callable[[str], None] = print) -> list[Path]:
+    """Copy the results the recipe's ``exports`` name (file name -> phase) into ``dest``."""
+    written = []
+    for fname, ph_name in r.get("exports", {}).items():
+        res = phase_result(Path(out), ph_name)
+        if res is None:
+            raise RuntimeError(f"export {fname}: phase {ph_name!r} has not finished")
+        target = Path(dest) / fname
+        shutil.copyfile(Path(out) / ph_name / res["file"], target)
+        say(f"exported {ph_name}/{res['file']} -> {target}")
+        written.append(target)
+    return written
