@@ -1,7 +1,7 @@
 """Tune the built-in-proposal post-processing on the *validation* shards (never the test set).
 
-Runs ``ShapeDetector.detect`` once per frame with the proposal cap at its largest and NMS
-off, keeps the raw detections (in proposal-rank order), then scores every combination of
+Runs the detector once per frame with the proposal cap at its largest, captures the
+detections that reach the NMS step (a post-processing hook, in proposal-rank order), then scores every combination of
 proposal cap x NMS IoU x containment threshold (with the detector's Soft-NMS decay) with the
 AP code. Prints one line per setting, best last. Usage::
 
@@ -16,7 +16,6 @@ import json
 
 import numpy as np
 
-import shape_detector.detector as detector_module
 from shape_detector import ShapeDetector
 from shape_detector.classes import CLASSES
 from shape_detector.evaluation.ap import evaluate_detections
@@ -34,14 +33,18 @@ def main() -> None:
     a = ap.parse_args()
 
     captured: list = []
-    detector_module.nms_3d = lambda objs, *args, **kwargs: (captured.append(list(objs)), list(objs))[1]
-    det = ShapeDetector(weights=a.weights, score_threshold=0.0, max_objects=30)
+
+    def before_nms(step: str, objects: list) -> None:
+        if step == "nms":
+            captured.append(objects)
+
+    det = ShapeDetector(preset="accurate", weights=a.weights, score_threshold=0.0, max_objects=30)
     raw, gts, ups = [], [], []
     for i, fr in enumerate(iter_frames(a.data)):
         if i >= a.frames:
             break
         captured.clear()
-        det.detect(fr.rgb, fr.depth, fr.K)
+        det.finish(det.prepare(fr.rgb, fr.depth, fr.K), hook=before_nms)
         raw.append(captured[0] if captured else [])
         gts.append(list(fr.objects))
         ups.append(fr.up)

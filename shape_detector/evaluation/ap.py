@@ -128,6 +128,61 @@ def pr_curve(status_ranked: Sequence[str], num_gt: int) -> tuple[np.ndarray, np.
     return prec, rec
 
 
+def _class_overlaps(
+    dets_per_frame: Sequence[Sequence[Any]], gts_per_frame: Sequence[Sequence[Any]],
+    det_idx: list[list[int]], gt_idx: list[list[int]], min_visible: float,
+    ignore_per_frame: Sequence[Sequence[bool]] | None, ups_per_frame: Sequence[np.ndarray | None] | None,
+    iou_fn: Callable[[Sequence[Any], Sequence[Any]], np.ndarray] | None,
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Per frame, one class: which GT are ignored, and the (D, G) IoU matrix."""
+    ignored, ious = [], []
+    for f in range(len(gts_per_frame)):
+        gts = [gts_per_frame[f][j] for j in gt_idx[f]]
+        flags = [is_ignored(g, min_visible) for g in gts]
+        if ignore_per_frame is not None:
+            flags = [a or bool(ignore_per_frame[f][j]) for a, j in zip(flags, gt_idx[f])]
+        ignored.append(np.asarray(flags, dtype=bool))
+        dets = [dets_per_frame[f][j] for j in det_idx[f]]
+        if dets and gts:
+            if iou_fn is not None:
+                m = np.asarray(iou_fn(dets, gts), dtype=np.float64)
+            else:
+                m = iou_matrix(dets, gts, up=None if ups_per_frame is None else ups_per_frame[f])
+        else:
+            m = np.zeros((len(dets), len(gts)))
+        ious.append(m)
+    return ignored, ious
+
+
+def _score_class(
+    res: dict[str, Any], cls: str, dets_per_frame: Sequence[Sequence[Any]], det_idx: list[list[int]],
+    gt_idx: list[list[int]], ignored: list[np.ndarray], ious: list[np.ndarray],
+    thresholds: list[float], keys: list[str],
+) -> None:
+    """Match one class's detections at every threshold and fill its rows of ``res``."""
+    num_gt = int(sum(int((~ig).sum()) for ig in ignored))
+    res["num_gt"][cls] = num_gt
+    res["num_ignored_gt"][cls] = int(sum(int(ig.sum()) for ig in ignored))
+    flat = [(f, j) for f in range(len(det_idx)) for j in det_idx[f]]
+    res["num_det"][cls] = len(flat)
+    scores = [float(dets_per_frame[f][j].score) for f, j in flat]
+    frames = [f for f, _ in flat]
+    for t, k in zip(thresholds, keys):
+        m = match_class(scores, frames, ious, ignored, t)
+        ranked = [m["status"][d] for d in m["order"]]
+        prec, rec = pr_curve(ranked, num_gt)
+        res["precision"][k][cls] = prec.tolist()
+        res["recall"][k][cls] = rec.tolist()
+        res["scores"][k][cls] = [scores[d] for d in m["order"] if m["status"][d] != "ignored"]
+        res["ap"][k][cls] = voc_ap(rec, prec) if num_gt > 0 else float("nan")
+        for d in m["order"]:
+            f, j = flat[d]
+            res["det_status"][k][f][j] = str(m["status"][d])
+            if m["status"][d] == "tp":
+                res["matches"][k].append({"frame": f, "det": j, "gt": gt_idx[f][int(m["gt_index"][d])],
+                                          "iou": float(m["iou"][d]), "class": cls, "score": scores[d]})
+
+
 def evaluate_detections(
     dets_per_frame: Sequence[Sequence[Any]],
     gts_per_frame: Sequence[Sequence[Any]],
@@ -183,52 +238,9 @@ def evaluate_detections(
     for cls in classes:
         det_idx = [[j for j, d in enumerate(dets_per_frame[f]) if d.class_name == cls] for f in range(nf)]
         gt_idx = [[j for j, g in enumerate(gts_per_frame[f]) if g.class_name == cls] for f in range(nf)]
-        ignored, ious = [], []
-        for f in range(nf):
-            gts = [gts_per_frame[f][j] for j in gt_idx[f]]
-            flags = [is_ignored(g, min_visible) for g in gts]
-            if ignore_per_frame is not None:
-                flags = [a or bool(ignore_per_frame[f][j]) for a, j in zip(flags, gt_idx[f])]
-            ignored.append(np.asarray(flags, dtype=bool))
-            dets = [dets_per_frame[f][j] for j in det_idx[f]]
-            if dets and gts:
-                if iou_fn is not None:
-                    m = np.asarray(iou_fn(dets, gts), dtype=np.float64)
-                else:
-                    up = None if ups_per_frame is None else ups_per_frame[f]
-                    m = iou_matrix(dets, gts, up=up)
-            else:
-                m = np.zeros((len(dets), len(gts)))
-            ious.append(m)
-        num_gt = int(sum(int((~ig).sum()) for ig in ignored))
-        res["num_gt"][cls] = num_gt
-        res["num_ignored_gt"][cls] = int(sum(int(ig.sum()) for ig in ignored))
-        flat = [(f, j) for f in range(nf) for j in det_idx[f]]
-        res["num_det"][cls] = len(flat)
-        scores = [float(dets_per_frame[f][j].score) for f, j in flat]
-        frames = [f for f, _ in flat]
-        for t, k in zip(thresholds, keys):
-            m = match_class(scores, frames, ious, ignored, t)
-            ranked = [m["status"][d] for d in m["order"]]
-            prec, rec = pr_curve(ranked, num_gt)
-            res["precision"][k][cls] = prec.tolist()
-            res["recall"][k][cls] = rec.tolist()
-            res["scores"][k][cls] = [scores[d] for d in m["order"] if m["status"][d] != "ignored"]
-            res["ap"][k][cls] = voc_ap(rec, prec) if num_gt > 0 else float("nan")
-            for d in m["order"]:
-                f, j = flat[d]
-                res["det_status"][k][f][j] = str(m["status"][d])
-                if m["status"][d] == "tp":
-                    res["matches"][k].append(
-                        {
-                            "frame": f,
-                            "det": j,
-                            "gt": gt_idx[f][int(m["gt_index"][d])],
-                            "iou": float(m["iou"][d]),
-                            "class": cls,
-                            "score": scores[d],
-                        }
-                    )
+        ignored, ious = _class_overlaps(dets_per_frame, gts_per_frame, det_idx, gt_idx, min_visible,
+                                        ignore_per_frame, ups_per_frame, iou_fn)
+        _score_class(res, cls, dets_per_frame, det_idx, gt_idx, ignored, ious, thresholds, keys)
     for k in keys:
         vals = [v for c, v in res["ap"][k].items() if res["num_gt"][c] > 0]
         res["mAP"][k] = float(np.mean(vals)) if vals else float("nan")

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -100,6 +101,151 @@ def _class_mean(records: Sequence[dict[str, Any]], classes: Sequence[str]) -> di
     return out
 
 
+@dataclass
+class _Collected:
+    """Per-frame detections, GT and what pairs them, gathered by :func:`_run_frames`."""
+
+    dets: list[list[Any]] = field(default_factory=list)
+    gts: list[list[Any]] = field(default_factory=list)
+    ups: list[np.ndarray | None] = field(default_factory=list)
+    provenance: list[dict[int, int]] = field(default_factory=list)  # det index -> GT index (GT-box mode)
+    seg_ids: list[dict[int, np.ndarray]] = field(default_factory=list)
+    times: list[float] = field(default_factory=list)
+
+
+def _given_box_owner(dets: list[Any], boxes: list, src: list[int]) -> dict[int, int]:
+    """Detection index -> GT index for detections made from a given GT 2D box."""
+    prov: dict[int, int] = {}
+    free = list(range(len(boxes)))
+    for j, d in enumerate(dets):
+        db = np.asarray(getattr(d, "box2d", (0, 0, 0, 0))[:4], dtype=np.float64)
+        for k in free:
+            if boxes[k][4] == d.class_name and np.allclose(db, boxes[k][:4], atol=1e-6):
+                prov[j] = src[k]
+                free.remove(k)
+                break
+    return prov
+
+
+def _run_frames(detect_fn: DetectFn, frames: Iterable[Frame], use_gt_boxes: bool, classes: list[str],
+                max_frames: int | None, progress: Callable[[int, float], None] | None) -> _Collected:
+    """Run ``detect_fn`` on every frame, timing it, and keep what the metrics need."""
+    c = _Collected()
+    for i, frame in enumerate(frames):
+        if max_frames is not None and i >= max_frames:
+            break
+        boxes, src = gt_boxes2d(frame, classes) if use_gt_boxes else (None, [])
+        t0 = time.perf_counter()
+        dets = list(detect_fn(frame, boxes))
+        dt = time.perf_counter() - t0
+        c.times.append(dt)
+        c.provenance.append(_given_box_owner(dets, boxes, src) if boxes else {})
+        c.seg_ids.append({j: ids for j, d in enumerate(dets) if (ids := _seg_gt_ids(d, frame)) is not None})
+        c.dets.append(dets)
+        c.gts.append(list(frame.objects))
+        c.ups.append(None if frame.up is None else np.asarray(frame.up, dtype=np.float64))
+        if progress is not None:
+            progress(i, dt)
+    return c
+
+
+def _pairs(c: _Collected, detection: dict[str, Any], key0: str | None, classes: list[str],
+           min_visible: float) -> list[tuple[int, int, int, str]]:
+    """``(frame, det, gt, how)``: each detection paired with the GT it was made from (given
+    box) or matched to by AP at the lowest IoU threshold; each GT at most once."""
+    ap_pairs = {(m["frame"], m["det"]): m["gt"] for m in detection["matches"].get(key0, [])} if key0 else {}
+    pairs: list[tuple[int, int, int, str]] = []
+    for f in range(len(c.dets)):
+        used: set[int] = set()
+        for j in range(len(c.dets[f])):
+            if j in c.provenance[f]:
+                g, how = c.provenance[f][j], "gt_box"
+            elif (f, j) in ap_pairs:
+                g, how = ap_pairs[(f, j)], f"iou>={key0}"
+            else:
+                continue
+            gt = c.gts[f][g]
+            if g in used or is_ignored(gt, min_visible) or gt.class_name not in classes:
+                continue
+            used.add(g)
+            pairs.append((f, j, g, how))
+    return pairs
+
+
+def _shape_record(det: Any, gt: Any, shape_resolution: int, surface_samples: int,
+                  rng: np.random.Generator) -> dict[str, Any]:
+    """Shape metrics of a paired detection's primitives against the GT parts."""
+    prims = list(det.primitives)
+    po = to_box_frame(prims, det.center, det.rotation, det.size, normalise=True)
+    go = to_box_frame(gt.parts, gt.center, gt.rotation, gt.size, normalise=True)
+    return {
+        "class": gt.class_name,
+        "iou_camera": shape_iou(prims, gt.parts, shape_resolution),
+        "distance_camera": surface_distance(prims, gt.parts, surface_samples, rng),
+        "iou_object": shape_iou(po, go, shape_resolution),
+        "distance_object": surface_distance(po, go, surface_samples, rng),
+        "iou_box": box_relative_iou(
+            prims, (det.center, det.rotation, det.size), gt.parts, (gt.center, gt.rotation, gt.size),
+            shape_resolution,
+        ),
+    }
+
+
+def _pair_records(c: _Collected, pairs: list[tuple[int, int, int, str]], shape_resolution: int,
+                  surface_samples: int, rng: np.random.Generator) -> tuple[list[dict], list[dict], int]:
+    """Box-error records of every pair, the shape records, and how many pairs had no primitives."""
+    records, shape_records, missing = [], [], 0
+    for f, j, g, how in pairs:
+        det, gt = c.dets[f][j], c.gts[f][g]
+        rec = pair_errors(det, gt, c.ups[f])
+        rec.update({"frame": f, "det": j, "gt": g, "pairing": how, "score": float(getattr(det, "score", 0.0))})
+        if "seg_accuracy" not in rec and j in c.seg_ids[f]:
+            labels = np.asarray(det.seg_labels).reshape(-1)
+            ids = c.seg_ids[f][j]
+            if labels.size == ids.size:
+                rec["seg_accuracy"] = segmentation_accuracy(labels, ids == int(gt.instance_id))
+        if gt.parts:
+            if not list(getattr(det, "primitives", []) or []):
+                missing += 1
+            else:
+                s = _shape_record(det, gt, shape_resolution, surface_samples, rng)
+                shape_records.append(s)
+                rec.update({k: v for k, v in s.items() if k != "class"})
+        records.append(rec)
+    return records, shape_records, missing
+
+
+def _shape_summary(shape_records: list[dict], classes: list[str], missing: int, shape_resolution: int,
+                   surface_samples: int) -> dict[str, Any]:
+    return {
+        "per_class": {c: _summarize_shape([r for r in shape_records if r["class"] == c]) for c in classes},
+        "all": _summarize_shape(shape_records),
+        "class_mean": _class_mean(shape_records, classes),
+        "missing_primitives": missing,
+        "note": (
+            f"IoU: {shape_resolution}^3 voxel grid over the union bounds; surface distance: symmetric "
+            f"chamfer of {surface_samples} surface samples per set over the GT corner-set diameter. "
+            "Object frame: each set in its own box frame scaled to unit box diagonal. "
+            "Box-relative: each set in its own box scaled per axis to the unit cube (the box error "
+            "left out; the GT parts in any box score 1). "
+            f"{missing} paired detections had no primitives (not scored)."
+        ),
+    }
+
+
+def _timing(times: list[float]) -> dict[str, Any]:
+    t = np.asarray(times, dtype=np.float64)
+    timing: dict[str, Any] = {"frames": int(t.size)}
+    if t.size:
+        timing.update({
+            "total_s": float(t.sum()), "mean_s": float(t.mean()), "median_s": float(np.median(t)),
+            "p90_s": float(np.percentile(t, 90)), "max_s": float(t.max()),
+            "fps": float(1.0 / t.mean()) if t.mean() > 0 else float("nan"),
+        })
+    timing["per_frame_s"] = t.tolist()
+    return timing
+
+
 def evaluate(
     detect_fn: DetectFn,
     frames: Iterable[Frame],
@@ -131,138 +277,24 @@ def evaluate(
     """
     classes = list(classes)
     thresholds = [float(t) for t in iou_thresholds]
-    rng = np.random.default_rng(seed)
-    dets_pf: list[list[Any]] = []
-    gts_pf: list[list[Any]] = []
-    ups: list[np.ndarray | None] = []
-    provenance: list[dict[int, int]] = []  # per frame: det index -> GT index (GT-box mode)
-    seg_ids: list[dict[int, np.ndarray]] = []
-    times: list[float] = []
-
-    for i, frame in enumerate(frames):
-        if max_frames is not None and i >= max_frames:
-            break
-        boxes, src = gt_boxes2d(frame, classes) if use_gt_boxes else (None, [])
-        t0 = time.perf_counter()
-        dets = list(detect_fn(frame, boxes))
-        dt = time.perf_counter() - t0
-        times.append(dt)
-        prov: dict[int, int] = {}
-        if boxes:
-            free = list(range(len(boxes)))
-            for j, d in enumerate(dets):
-                db = np.asarray(getattr(d, "box2d", (0, 0, 0, 0))[:4], dtype=np.float64)
-                for k in free:
-                    if boxes[k][4] == d.class_name and np.allclose(db, boxes[k][:4], atol=1e-6):
-                        prov[j] = src[k]
-                        free.remove(k)
-                        break
-        provenance.append(prov)
-        seg_ids.append({j: ids for j, d in enumerate(dets) if (ids := _seg_gt_ids(d, frame)) is not None})
-        dets_pf.append(dets)
-        gts_pf.append(list(frame.objects))
-        ups.append(None if frame.up is None else np.asarray(frame.up, dtype=np.float64))
-        if progress is not None:
-            progress(i, dt)
-
-    detection = evaluate_detections(
-        dets_pf, gts_pf, thresholds, classes, min_visible=min_visible, ups_per_frame=ups
-    )
-
+    c = _run_frames(detect_fn, frames, use_gt_boxes, classes, max_frames, progress)
+    detection = evaluate_detections(c.dets, c.gts, thresholds, classes, min_visible=min_visible, ups_per_frame=c.ups)
     hypotheses = None
     if class_hypotheses > 1 and not use_gt_boxes:
-        hypotheses = evaluate_detections(
-            [expand_class_hypotheses(d, class_hypotheses, classes) for d in dets_pf],
-            gts_pf, thresholds, classes, min_visible=min_visible, ups_per_frame=ups,
-        )
-        hypotheses = {"k": int(class_hypotheses), "ap": hypotheses["ap"], "mAP": hypotheses["mAP"],
-                      "num_det": hypotheses["num_det"]}
+        h = evaluate_detections([expand_class_hypotheses(d, class_hypotheses, classes) for d in c.dets],
+                                c.gts, thresholds, classes, min_visible=min_visible, ups_per_frame=c.ups)
+        hypotheses = {"k": int(class_hypotheses), "ap": h["ap"], "mAP": h["mAP"], "num_det": h["num_det"]}
 
-    # ---- pairs for the box / shape errors
     key0 = thr_key(min(thresholds)) if thresholds else None
-    ap_pairs = {(m["frame"], m["det"]): m["gt"] for m in detection["matches"].get(key0, [])} if key0 else {}
-    pairs: list[tuple[int, int, int, str]] = []
-    for f in range(len(dets_pf)):
-        used: set[int] = set()
-        for j in range(len(dets_pf[f])):
-            if j in provenance[f]:
-                g, how = provenance[f][j], "gt_box"
-            elif (f, j) in ap_pairs:
-                g, how = ap_pairs[(f, j)], f"iou>={key0}"
-            else:
-                continue
-            gt = gts_pf[f][g]
-            if g in used or is_ignored(gt, min_visible) or gt.class_name not in classes:
-                continue
-            used.add(g)
-            pairs.append((f, j, g, how))
-
-    records, shape_records, missing = [], [], 0
-    for f, j, g, how in pairs:
-        det, gt = dets_pf[f][j], gts_pf[f][g]
-        rec = pair_errors(det, gt, ups[f])
-        rec.update({"frame": f, "det": j, "gt": g, "pairing": how, "score": float(getattr(det, "score", 0.0))})
-        if "seg_accuracy" not in rec and j in seg_ids[f]:
-            labels = np.asarray(getattr(det, "seg_labels")).reshape(-1)
-            ids = seg_ids[f][j]
-            if labels.size == ids.size:
-                rec["seg_accuracy"] = segmentation_accuracy(labels, ids == int(gt.instance_id))
-        prims = list(getattr(det, "primitives", []) or [])
-        if gt.parts:
-            if not prims:
-                missing += 1
-            else:
-                po = to_box_frame(prims, det.center, det.rotation, det.size, normalise=True)
-                go = to_box_frame(gt.parts, gt.center, gt.rotation, gt.size, normalise=True)
-                s = {
-                    "class": gt.class_name,
-                    "iou_camera": shape_iou(prims, gt.parts, shape_resolution),
-                    "distance_camera": surface_distance(prims, gt.parts, surface_samples, rng),
-                    "iou_object": shape_iou(po, go, shape_resolution),
-                    "distance_object": surface_distance(po, go, surface_samples, rng),
-                    "iou_box": box_relative_iou(
-                        prims, (det.center, det.rotation, det.size), gt.parts, (gt.center, gt.rotation, gt.size),
-                        shape_resolution,
-                    ),
-                }
-                shape_records.append(s)
-                rec.update({k: v for k, v in s.items() if k != "class"})
-        records.append(rec)
-
+    pairs = _pairs(c, detection, key0, classes, min_visible)
+    records, shape_records, missing = _pair_records(c, pairs, shape_resolution, surface_samples,
+                                                    np.random.default_rng(seed))
     box = aggregate_box_errors(records, classes)
     n_gtbox = sum(1 for r in records if r["pairing"] == "gt_box")
     box["pairing"] = (
         f"{len(records)} pairs: {n_gtbox} by the GT 2D box the detection was given, "
         f"{len(records) - n_gtbox} by 3D IoU >= {key0} (AP matching)"
     )
-    shape = {
-        "per_class": {c: _summarize_shape([r for r in shape_records if r["class"] == c]) for c in classes},
-        "all": _summarize_shape(shape_records),
-        "class_mean": _class_mean(shape_records, classes),
-        "missing_primitives": missing,
-        "note": (
-            f"IoU: {shape_resolution}^3 voxel grid over the union bounds; surface distance: symmetric "
-            f"chamfer of {surface_samples} surface samples per set over the GT corner-set diameter. "
-            "Object frame: each set in its own box frame scaled to unit box diagonal. "
-            "Box-relative: each set in its own box scaled per axis to the unit cube (the box error "
-            "left out; the GT parts in any box score 1). "
-            f"{missing} paired detections had no primitives (not scored)."
-        ),
-    }
-    t = np.asarray(times, dtype=np.float64)
-    timing: dict[str, Any] = {"frames": int(t.size)}
-    if t.size:
-        timing.update(
-            {
-                "total_s": float(t.sum()),
-                "mean_s": float(t.mean()),
-                "median_s": float(np.median(t)),
-                "p90_s": float(np.percentile(t, 90)),
-                "max_s": float(t.max()),
-                "fps": float(1.0 / t.mean()) if t.mean() > 0 else float("nan"),
-            }
-        )
-    timing["per_frame_s"] = t.tolist()
     results = {
         "settings": {
             "mode": "gt_boxes" if use_gt_boxes else "detector_boxes",
@@ -272,12 +304,12 @@ def evaluate(
             "surface_samples": int(surface_samples),
             "seed": int(seed),
         },
-        "num_frames": len(dets_pf),
+        "num_frames": len(c.dets),
         "detection": detection,
         **({"detection_class_hypotheses": hypotheses} if hypotheses is not None else {}),
         "box_errors": box,
-        "shape": shape,
-        "timing": timing,
+        "shape": _shape_summary(shape_records, classes, missing, shape_resolution, surface_samples),
+        "timing": _timing(c.times),
     }
     if keep_pairs:
         results["pairs"] = records
