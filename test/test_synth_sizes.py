@@ -7,6 +7,7 @@ import pytest
 
 from shape_detector.classes import CLASSES, MEAN_SIZES
 from shape_detector.synth import furniture as fu
+from shape_detector.synth.sizes import sample_size
 
 
 @pytest.mark.parametrize("name", CLASSES)
@@ -14,7 +15,7 @@ def test_size_statistics(name):
     rng = np.random.default_rng(123)
     sizes = []
     for _ in range(150):
-        size = fu.sample_size(name, rng)
+        size = sample_size(name, rng)
         m = fu.build(name, rng, size)
         lo, hi = m.bounds()
         assert np.allclose(hi - lo, size, atol=1e-6), (name, hi - lo, size)  # the model spans its box
@@ -32,3 +33,7 @@ def test_structural_variants():
     counts = {n: {len(fu.build(n, rng).parts) for _ in range(40)} for n in CLASSES}
     for n, c in counts.items():
         assert len(c) >= 3, (n, c)  # several structurally different models per class
+
+
+def test_every_class_has_a_builder():
+    assert set(fu.BUILDERS) == set(CLASSES)

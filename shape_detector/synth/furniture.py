@@ -1,4 +1,4 @@
-"""Part models of the ten furniture classes (and unlabelled clutter items).
+"""Part models of the ten furniture classes (unlabelled clutter items: :mod:`.clutter`).
 
 Every model is a list of axis-aligned cuboid parts in the object's local frame: x = the
 object's facing direction (front), y = left, z = up, the footprint centred on the origin
@@ -16,6 +16,7 @@ import numpy as np
 
 from ..classes import CLASSES, MEAN_SIZES
 from . import textures as tx
+from .sizes import sample_size
 from .textures import Material
 
 
@@ -53,49 +54,6 @@ class Model:
             b = self._bounds = (lo, hi, len(self.parts))
         return b[0], b[1]
 
-
-def _n(rng: np.random.Generator, mean: float, sd: float, lo: float, hi: float) -> float:
-    return float(np.clip(rng.normal(mean, sd), lo, hi))
-
-
-# ----------------------------------------------------------------------------- sizes
-
-def sample_size(name: str, rng: np.random.Generator) -> tuple[float, float, float]:
-    """Sample a full extent ``(l, w, h)`` for a class (means near SUN RGB-D's)."""
-    if name == "bed":
-        l = _n(rng, 2.11, 0.12, 1.85, 2.5)
-        w = _n(rng, 1.62, 0.28, 0.9, 2.2)
-        h = _n(rng, 1.0, 0.14, 0.72, 1.4) if rng.random() < 0.8 else _n(rng, 0.62, 0.07, 0.45, 0.75)
-        return l, w, h
-    if name == "table":
-        r = rng.random()
-        if r < 0.2:  # coffee / side table
-            return _n(rng, 0.6, 0.12, 0.4, 0.9), _n(rng, 1.0, 0.25, 0.45, 1.5), _n(rng, 0.46, 0.05, 0.35, 0.6)
-        if r < 0.36:  # square / round-ish
-            s = _n(rng, 0.85, 0.12, 0.6, 1.2)
-            return s, s * rng.uniform(0.97, 1.03), _n(rng, 0.75, 0.03, 0.68, 0.8)
-        w = _n(rng, 1.35, 0.3, 0.8, 2.4)
-        return min(_n(rng, 0.8, 0.12, 0.55, 1.1), w), w, _n(rng, 0.755, 0.03, 0.68, 0.8)
-    if name == "sofa":
-        return _n(rng, 0.92, 0.08, 0.72, 1.15), _n(rng, 1.87, 0.35, 0.9, 2.8), _n(rng, 0.85, 0.07, 0.68, 1.05)
-    if name == "chair":
-        return _n(rng, 0.59, 0.06, 0.42, 0.78), _n(rng, 0.55, 0.06, 0.4, 0.72), _n(rng, 0.83, 0.09, 0.62, 1.15)
-    if name == "toilet":
-        return _n(rng, 0.70, 0.05, 0.58, 0.82), _n(rng, 0.455, 0.04, 0.36, 0.56), _n(rng, 0.76, 0.05, 0.64, 0.88)
-    if name == "desk":
-        return _n(rng, 0.70, 0.1, 0.5, 0.95), _n(rng, 1.36, 0.25, 0.8, 2.0), _n(rng, 0.737, 0.03, 0.68, 0.8)
-    if name == "dresser":
-        return _n(rng, 0.53, 0.06, 0.38, 0.7), _n(rng, 1.0, 0.25, 0.5, 1.7), _n(rng, 1.17, 0.25, 0.7, 1.75)
-    if name == "night_stand":
-        return _n(rng, 0.50, 0.06, 0.35, 0.65), _n(rng, 0.63, 0.1, 0.4, 0.9), _n(rng, 0.683, 0.08, 0.45, 0.9)
-    if name == "bookshelf":
-        return _n(rng, 0.405, 0.06, 0.25, 0.6), _n(rng, 1.07, 0.3, 0.45, 1.9), _n(rng, 1.69, 0.35, 0.75, 2.3)
-    if name == "bathtub":
-        return _n(rng, 0.77, 0.06, 0.62, 0.95), _n(rng, 1.40, 0.18, 1.0, 1.85), _n(rng, 0.473, 0.06, 0.35, 0.65)
-    raise ValueError(name)
-
-
-# ----------------------------------------------------------------------------- classes
 
 def _frame_mat(rng: np.random.Generator) -> Material:
     r = rng.random()
@@ -526,11 +484,8 @@ def bathtub(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
     return m
 
 
-BUILDERS = {
-    "bed": bed, "table": table, "sofa": sofa, "chair": chair, "toilet": toilet, "desk": desk,
-    "dresser": dresser, "night_stand": night_stand, "bookshelf": bookshelf, "bathtub": bathtub,
-}
-assert set(BUILDERS) == set(CLASSES)
+BUILDERS = {"bed": bed, "table": table, "sofa": sofa, "chair": chair, "toilet": toilet, "desk": desk,
+            "dresser": dresser, "night_stand": night_stand, "bookshelf": bookshelf, "bathtub": bathtub}
 
 
 def build(name: str, rng: np.random.Generator, size: tuple[float, float, float] | None = None) -> Model:
@@ -540,128 +495,5 @@ def build(name: str, rng: np.random.Generator, size: tuple[float, float, float] 
 
 
 def mean_size(name: str) -> np.ndarray:
+    """The class's mean ``(l, w, h)`` (metres)."""
     return MEAN_SIZES[CLASSES.index(name)].astype(np.float64)
-
-
-# ----------------------------------------------------------------------------- clutter
-
-def clutter(kind: str, rng: np.random.Generator) -> Model:
-    """Unlabelled items: small things on surfaces, floor things, people, other furniture."""
-    m = Model(kind, labelled=False)
-    if kind == "box":
-        a, b, c = rng.uniform(0.15, 0.6, 3)
-        mat = tx.Material(tx.PLAIN, tuple(np.clip(np.array([0.6, 0.45, 0.3]) * rng.uniform(0.7, 1.2), 0, 1)),
-                          (0, 0, 0), 0.1, 0.0, 1.0, float(rng.uniform(0, 99))) if rng.random() < 0.6 else tx.colored(rng)
-        m.add(-a / 2, a / 2, -b / 2, b / 2, 0, c, mat)
-        if rng.random() < 0.4:
-            a2, b2 = a * rng.uniform(0.5, 1), b * rng.uniform(0.5, 1)
-            c2 = rng.uniform(0.1, 0.4)
-            m.add(-a2 / 2, a2 / 2, -b2 / 2, b2 / 2, c, c + c2, tx.colored(rng))
-    elif kind == "small":  # cups, bottles, books, gadgets
-        a, b = rng.uniform(0.04, 0.3, 2)
-        c = rng.uniform(0.02, 0.3)
-        m.add(-a / 2, a / 2, -b / 2, b / 2, 0, c, tx.colored(rng, spec=0.5) if rng.random() < 0.7 else tx.book(rng))
-    elif kind == "books":
-        z = 0.0
-        for _ in range(int(rng.integers(1, 6))):
-            a, b, c = rng.uniform(0.15, 0.3), rng.uniform(0.1, 0.22), rng.uniform(0.01, 0.05)
-            dx, dy = rng.normal(0, 0.02, 2)
-            m.add(dx - a / 2, dx + a / 2, dy - b / 2, dy + b / 2, z, z + c, tx.book(rng))
-            z += c
-    elif kind == "laptop":
-        a, b = rng.uniform(0.22, 0.28), rng.uniform(0.3, 0.38)
-        mat = tx.metal(rng)
-        m.add(-a / 2, a / 2, -b / 2, b / 2, 0, 0.02, mat)
-        m.add(-a / 2 - 0.01, -a / 2 + 0.005, -b / 2, b / 2, 0.02, 0.02 + a, mat)
-    elif kind == "monitor":
-        a, b = rng.uniform(0.3, 0.45), rng.uniform(0.45, 0.7)
-        mat = tx.metal(rng)
-        m.add(-0.1, 0.1, -0.1, 0.1, 0, 0.015, mat)
-        m.add(-0.06, -0.03, -0.03, 0.03, 0.015, 0.12, mat)
-        m.add(-0.03, 0.0, -b / 2, b / 2, 0.1, 0.1 + a, tx.Material(tx.PLAIN, (0.04, 0.04, 0.05), (0, 0, 0), 0.1, 0.8, 0.3, 0.0))
-    elif kind == "lamp":
-        bh = rng.uniform(0.25, 0.5)
-        bm = tx.metal(rng) if rng.random() < 0.5 else tx.ceramic(rng)
-        m.add(-0.07, 0.07, -0.07, 0.07, 0, 0.03, bm)
-        m.add(-0.015, 0.015, -0.015, 0.015, 0.03, bh, bm)
-        s = rng.uniform(0.12, 0.25)
-        m.add(-s, s, -s, s, bh, bh + rng.uniform(0.15, 0.3), tx.emissive(rng, 0.9) if rng.random() < 0.4 else tx.fabric(rng))
-    elif kind == "floor_lamp":
-        bh = rng.uniform(1.3, 1.8)
-        bm = tx.metal(rng)
-        m.add(-0.15, 0.15, -0.15, 0.15, 0, 0.03, bm)
-        m.add(-0.015, 0.015, -0.015, 0.015, 0.03, bh, bm)
-        s = rng.uniform(0.15, 0.25)
-        m.add(-s, s, -s, s, bh, bh + rng.uniform(0.2, 0.35), tx.fabric(rng))
-    elif kind == "plant":
-        ph = rng.uniform(0.15, 0.4)
-        pr = rng.uniform(0.1, 0.2)
-        m.add(-pr, pr, -pr, pr, 0, ph, tx.colored(rng) if rng.random() < 0.5 else tx.ceramic(rng))
-        g = np.array([0.15, 0.35, 0.12])
-        for _ in range(int(rng.integers(3, 8))):
-            s = rng.uniform(0.08, 0.25)
-            c = rng.normal(0, pr, 2)
-            z = ph + rng.uniform(0, 0.5)
-            m.add(c[0] - s, c[0] + s, c[1] - s, c[1] + s, z, z + s * rng.uniform(0.5, 1.5),
-                  tx.Material(tx.FABRIC, tuple(np.clip(g * rng.uniform(0.5, 1.5), 0, 1)), (0, 0, 0), 0.1, 0.1, 0.8,
-                              float(rng.uniform(0, 99))))
-    elif kind == "bin":
-        s = rng.uniform(0.2, 0.35)
-        m.add(-s / 2, s / 2, -s / 2, s / 2, 0, rng.uniform(0.25, 0.5), tx.colored(rng, spec=0.3))
-    elif kind == "bag":
-        a, b, c = rng.uniform(0.15, 0.3), rng.uniform(0.25, 0.45), rng.uniform(0.2, 0.5)
-        m.add(-a / 2, a / 2, -b / 2, b / 2, 0, c, tx.fabric(rng))
-    elif kind == "person":
-        H = rng.uniform(1.5, 1.92)
-        sw = H * rng.uniform(0.22, 0.26)
-        cloth = tx.fabric(rng)
-        pants = tx.fabric(rng)
-        skin = tx.Material(tx.PLAIN, tuple(np.clip(np.array([0.8, 0.6, 0.5]) * rng.uniform(0.35, 1.1), 0, 1)), (0, 0, 0),
-                           0.1, 0.1, 0.6, 0.0)
-        hair = tx.colored(rng, 0.02, 0.4)
-        lh = H * 0.47
-        m.add(-0.07, 0.07, -sw / 2 + 0.02, -0.02, 0, lh, pants)
-        m.add(-0.07, 0.07, 0.02, sw / 2 - 0.02, 0, lh, pants)
-        m.add(-0.11, 0.11, -sw / 2, sw / 2, lh, H * 0.82, cloth)
-        m.add(-0.05, 0.05, -sw / 2 - 0.09, -sw / 2, H * 0.45, H * 0.8, cloth)
-        m.add(-0.05, 0.05, sw / 2, sw / 2 + 0.09, H * 0.45, H * 0.8, cloth)
-        m.add(-0.1, 0.1, -0.08, 0.08, H * 0.85, H, skin)
-        m.add(-0.105, 0.08, -0.085, 0.085, H * 0.95, H + 0.01, hair)
-    elif kind == "rug":
-        a, b = rng.uniform(0.8, 2.4), rng.uniform(0.6, 2.0)
-        m.add(-a / 2, a / 2, -b / 2, b / 2, 0, rng.uniform(0.004, 0.015), tx.fabric(rng) if rng.random() < 0.5 else tx.floor(rng))
-    elif kind == "cabinet":  # unlabelled furniture: cabinets, wardrobes, tv stands
-        l, w, h = rng.uniform(0.35, 0.65), rng.uniform(0.5, 1.6), rng.choice([rng.uniform(0.4, 0.9), rng.uniform(1.6, 2.2)])
-        _cabinet(m, l, w, h, rng, int(rng.integers(1, 3)), int(rng.integers(1, 4)), _frame_mat(rng))
-        m.labelled = False
-    elif kind == "tv":
-        a, b = rng.uniform(0.5, 0.9), rng.uniform(0.8, 1.5)
-        m.add(-0.15, 0.15, -0.25, 0.25, 0, 0.02, tx.metal(rng))
-        m.add(-0.04, 0.0, -b / 2, b / 2, 0.05, 0.05 + a, tx.Material(tx.PLAIN, (0.03, 0.03, 0.035), (0, 0, 0), 0.1, 0.9, 0.15, 0.0))
-    elif kind == "ottoman":
-        a, b, c = rng.uniform(0.4, 0.8), rng.uniform(0.4, 1.2), rng.uniform(0.35, 0.48)
-        m.add(-a / 2, a / 2, -b / 2, b / 2, 0, c, tx.fabric(rng) if rng.random() < 0.6 else tx.leather(rng))
-    elif kind == "clothes":
-        for _ in range(int(rng.integers(1, 4))):
-            a, b = rng.uniform(0.2, 0.6, 2)
-            dx, dy = rng.normal(0, 0.15, 2)
-            m.add(dx - a / 2, dx + a / 2, dy - b / 2, dy + b / 2, 0, rng.uniform(0.02, 0.12), tx.fabric(rng))
-    elif kind == "sink":
-        l, w, h = rng.uniform(0.4, 0.6), rng.uniform(0.5, 1.0), rng.uniform(0.78, 0.9)
-        mat = _frame_mat(rng)
-        m.add(-l / 2, l / 2 - 0.02, -w / 2, w / 2, 0, h - 0.04, mat)
-        cer = tx.ceramic(rng)
-        m.add(-l / 2, l / 2, -w / 2, w / 2, h - 0.04, h, cer)
-        m.add(-l / 2, -l / 2 + 0.05, -0.02, 0.02, h, h + 0.25, tx.metal(rng))
-    elif kind == "radiator":
-        w, h = rng.uniform(0.6, 1.4), rng.uniform(0.4, 0.7)
-        mat = tx.paint(rng)
-        for i in range(int(w / 0.06)):
-            m.add(-0.05, 0.05, -w / 2 + i * 0.06, -w / 2 + i * 0.06 + 0.045, 0.1, 0.1 + h, mat)
-    else:
-        raise ValueError(kind)
-    return m
-
-
-SURFACE_CLUTTER = ("small", "small", "small", "books", "laptop", "monitor", "lamp", "plant", "box", "clothes")
-FLOOR_CLUTTER = ("box", "box", "bin", "bag", "person", "floor_lamp", "plant", "ottoman", "cabinet", "cabinet", "tv")

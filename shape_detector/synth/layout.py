@@ -15,65 +15,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..classes import CLASSES
+from . import clutter as clutter_items
 from . import furniture as fu
 from . import textures as tx
 from .furniture import Model
+from .scene_types import Placed, Scene, Static, rotz
 from .textures import Material
-
-
-def rotz(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-@dataclass
-class Placed:
-    """A model at a world pose (yaw about z, local origin at ``pos``)."""
-
-    model: Model
-    pos: np.ndarray
-    yaw: float
-
-    def footprint(self) -> tuple[np.ndarray, np.ndarray, float]:
-        lo, hi = self.model.bounds()
-        c_local = 0.5 * (lo + hi)
-        c = self.pos + rotz(self.yaw) @ c_local
-        return c[:2], 0.5 * (hi - lo)[:2], self.yaw
-
-    def top(self) -> float:
-        return float(self.pos[2] + self.model.bounds()[1][2])
-
-    def cuboids(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[Material]]:
-        """World cuboids of the parts: centres (n,3), sizes (n,3), rotation (3,3), materials."""
-        R = rotz(self.yaw)
-        lo = np.array([p.lo for p in self.model.parts])
-        hi = np.array([p.hi for p in self.model.parts])
-        centers = (0.5 * (lo + hi)) @ R.T + self.pos
-        return centers, hi - lo, R, [p.mat for p in self.model.parts]
-
-
-@dataclass
-class Static:
-    center: np.ndarray
-    size: np.ndarray
-    R: np.ndarray
-    mat: Material
-
-
-@dataclass
-class Scene:
-    rx: float
-    ry: float
-    height: float
-    room_type: str
-    structure: list[Static] = field(default_factory=list)
-    objects: list[Placed] = field(default_factory=list)  # labelled
-    clutter: list[Placed] = field(default_factory=list)
-    #: point lights: (position (3,), intensity, rgb (3,))
-    lights: list[tuple[np.ndarray, float, np.ndarray]] = field(default_factory=list)
-    ambient: float = 0.35
-    sun: tuple[np.ndarray, float] | None = None  # (direction the light travels, intensity)
-    openings: list[tuple[int, float, float, float, float, str]] = field(default_factory=list)
+from .walls import build_walls, wall_frame
 
 
 # --------------------------------------------------------------------------- footprints
@@ -122,154 +70,6 @@ class _Floor:
         self.fps.append(fp)
 
 
-# --------------------------------------------------------------------------- walls
-
-def _wall_frame(k: int, rx: float, ry: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    origin = [np.array([0.0, 0.0]), np.array([rx, 0.0]), np.array([rx, ry]), np.array([0.0, ry])][k]
-    along = [np.array([1.0, 0.0]), np.array([0.0, 1.0]), np.array([-1.0, 0.0]), np.array([0.0, -1.0])][k]
-    normal = np.array([-along[1], along[0]])
-    length = rx if k % 2 == 0 else ry
-    return origin, along, normal, length
-
-
-def _wall_box(k: int, rx: float, ry: float, s0: float, s1: float, d0: float, d1: float, z0: float, z1: float,
-              mat: Material) -> Static:
-    origin, along, normal, _ = _wall_frame(k, rx, ry)
-    sc, dc, zc = 0.5 * (s0 + s1), 0.5 * (d0 + d1), 0.5 * (z0 + z1)
-    c2 = origin + sc * along + dc * normal
-    R = np.stack([np.array([along[0], along[1], 0.0]), np.array([normal[0], normal[1], 0.0]), np.array([0, 0, 1.0])],
-                 axis=1)
-    return Static(np.array([c2[0], c2[1], zc]), np.array([abs(s1 - s0), abs(d1 - d0), abs(z1 - z0)]), R, mat)
-
-
-def _build_walls(sc: Scene, rng: np.random.Generator, bathroom: bool) -> None:
-    rx, ry, H = sc.rx, sc.ry, sc.height
-    T = 0.15
-    wall_mat = tx.wall(rng, bathroom)
-    accent = tx.wall(rng, bathroom) if rng.random() < 0.25 else wall_mat
-    trim = tx.paint(rng) if rng.random() < 0.7 else tx.wood(rng)
-    door_wall = int(rng.integers(4)) if rng.random() < 0.8 else -1
-    win_walls = [k for k in range(4) if rng.random() < 0.35]
-    for k in range(4):
-        _, _, _, L = _wall_frame(k, rx, ry)
-        wm = accent if k == 1 else wall_mat
-        ops: list[tuple[float, float, float, float, str]] = []
-        if k == door_wall and L > 1.4:
-            dw = rng.uniform(0.75, 1.0)
-            s0 = rng.uniform(0.1, L - dw - 0.1)
-            ops.append((s0, s0 + dw, 0.0, rng.uniform(2.0, min(2.2, H - 0.1)), "door"))
-        if k in win_walls:
-            for _ in range(int(rng.integers(1, 3))):
-                ww = rng.uniform(0.6, min(2.2, L - 0.4))
-                s0 = rng.uniform(0.2, L - ww - 0.2)
-                z0 = rng.uniform(0.75, 1.1)
-                z1 = min(H - 0.15, z0 + rng.uniform(0.9, 1.5))
-                if all(s0 > o[1] + 0.15 or s0 + ww < o[0] - 0.15 for o in ops):
-                    ops.append((s0, s0 + ww, z0, z1, "window"))
-        if rng.random() < 0.12 and L > 2.0:
-            rw = rng.uniform(0.6, min(1.8, L - 0.6))
-            s0 = rng.uniform(0.2, L - rw - 0.2)
-            if all(s0 > o[1] + 0.1 or s0 + rw < o[0] - 0.1 for o in ops):
-                ops.append((s0, s0 + rw, 0.0, H if rng.random() < 0.5 else rng.uniform(1.9, H - 0.1), "recess"))
-        ops.sort(key=lambda o: o[0])
-        s = -T
-        for s0, s1, z0, z1, kind in ops:
-            sc.structure.append(_wall_box(k, rx, ry, s, s0, -T, 0.0, 0.0, H, wm))
-            if z0 > 0:
-                sc.structure.append(_wall_box(k, rx, ry, s0, s1, -T, 0.0, 0.0, z0, wm))
-            if z1 < H:
-                sc.structure.append(_wall_box(k, rx, ry, s0, s1, -T, 0.0, z1, H, wm))
-            sc.openings.append((k, s0, s1, z0, z1, kind))
-            if kind == "door":
-                if rng.random() < 0.75:  # closed door
-                    dm = tx.wood(rng) if rng.random() < 0.5 else tx.paint(rng)
-                    sc.structure.append(_wall_box(k, rx, ry, s0, s1, -0.08, -0.04, 0.0, z1, dm))
-                    hs = s0 + 0.08 if rng.random() < 0.5 else s1 - 0.08
-                    sc.structure.append(_wall_box(k, rx, ry, hs - 0.06, hs + 0.06, -0.04, 0.02, 0.95, 1.0, tx.metal(rng)))
-                else:  # open: a corridor behind
-                    cd = rng.uniform(1.0, 3.0)
-                    cm = tx.wall(rng)
-                    sc.structure.append(_wall_box(k, rx, ry, s0 - 1.0, s1 + 1.0, -T - cd - 0.1, -T - cd, 0.0, H, cm))
-                    sc.structure.append(_wall_box(k, rx, ry, s0 - 0.1, s0, -T - cd, -T, 0.0, H, cm))
-                    sc.structure.append(_wall_box(k, rx, ry, s1, s1 + 0.1, -T - cd, -T, 0.0, H, cm))
-                fw = rng.uniform(0.04, 0.09)
-                sc.structure.append(_wall_box(k, rx, ry, s0 - fw, s0, 0.0, 0.015, 0.0, z1 + fw, trim))
-                sc.structure.append(_wall_box(k, rx, ry, s1, s1 + fw, 0.0, 0.015, 0.0, z1 + fw, trim))
-                sc.structure.append(_wall_box(k, rx, ry, s0, s1, 0.0, 0.015, z1, z1 + fw, trim))
-            elif kind == "window":
-                sc.structure.append(_wall_box(k, rx, ry, s0, s1, -T * 0.6, -T * 0.5, z0, z1, tx.glass(rng)))
-                fm = tx.paint(rng) if rng.random() < 0.7 else tx.metal(rng)
-                f = 0.05
-                for a, b, c, d in ((s0, s1, z0, z0 + f), (s0, s1, z1 - f, z1), (s0, s0 + f, z0, z1), (s1 - f, s1, z0, z1)):
-                    sc.structure.append(_wall_box(k, rx, ry, a, b, -T * 0.7, -T * 0.4, c, d, fm))
-                if s1 - s0 > 1.0:
-                    sm = 0.5 * (s0 + s1)
-                    sc.structure.append(_wall_box(k, rx, ry, sm - f / 2, sm + f / 2, -T * 0.7, -T * 0.4, z0, z1, fm))
-                sc.structure.append(_wall_box(k, rx, ry, s0 - 0.05, s1 + 0.05, -0.02, rng.uniform(0.02, 0.07), z0 - 0.03, z0, trim))
-                if rng.random() < 0.5:  # curtains
-                    cm = tx.fabric(rng)
-                    cw = rng.uniform(0.2, 0.5)
-                    ctop = min(H - 0.02, z1 + rng.uniform(0.05, 0.3))
-                    cbot = rng.uniform(0.02, z0) if rng.random() < 0.5 else z0 - 0.05
-                    for a in (s0 - cw * 0.5, s1 - cw * 0.5):
-                        nf = int(rng.integers(2, 5))
-                        for i in range(nf):
-                            dd = 0.03 + 0.03 * (i % 2)
-                            sc.structure.append(_wall_box(k, rx, ry, a + i * cw / nf, a + (i + 1) * cw / nf, dd, dd + 0.02,
-                                                          cbot, ctop, cm))
-                if sc.sun is None and rng.random() < 0.6:
-                    n = _wall_frame(k, rx, ry)[2]
-                    sun_dir = np.array([n[0] + rng.normal(0, 0.4), n[1] + rng.normal(0, 0.4), -rng.uniform(0.3, 1.0)])
-                    sc.sun = (sun_dir / np.linalg.norm(sun_dir), float(rng.uniform(0.2, 0.6)))
-            elif kind == "recess":
-                dep = rng.uniform(0.3, 0.8)
-                rm = wm if rng.random() < 0.7 else tx.wall(rng)
-                sc.structure.append(_wall_box(k, rx, ry, s0 - T, s1 + T, -dep - T, -dep, 0.0, H, rm))
-                sc.structure.append(_wall_box(k, rx, ry, s0 - T, s0, -dep, 0.0, 0.0, H, wm))
-                sc.structure.append(_wall_box(k, rx, ry, s1, s1 + T, -dep, 0.0, 0.0, H, wm))
-                if z1 < H:
-                    sc.structure.append(_wall_box(k, rx, ry, s0, s1, -dep, 0.0, z1, z1 + 0.02, wm))
-            s = s1
-        sc.structure.append(_wall_box(k, rx, ry, s, L + T, -T, 0.0, 0.0, H, wm))
-        # baseboards along the solid parts
-        if rng.random() < 0.7:
-            bh = rng.uniform(0.05, 0.12)
-            s = 0.0
-            for s0, s1, z0, z1, kind in ops + [(L, L, 0, 0, "end")]:
-                if kind in ("door", "recess", "end"):
-                    if s0 > s + 0.01:
-                        sc.structure.append(_wall_box(k, rx, ry, s, s0, 0.0, 0.012, 0.0, bh, trim))
-                    s = s1
-        # pictures / boards / shelves on the wall
-        for _ in range(int(rng.integers(0, 4))):
-            pw, ph = rng.uniform(0.25, 1.2), rng.uniform(0.25, 0.9)
-            if L < pw + 0.4:
-                continue
-            s0 = rng.uniform(0.2, L - pw - 0.2)
-            zc = rng.uniform(1.2, min(1.9, H - ph / 2 - 0.1))
-            if any(s0 < o[1] + 0.05 and s0 + pw > o[0] - 0.05 for o in ops):
-                continue
-            r = rng.random()
-            if r < 0.6:
-                frame = tx.wood(rng) if rng.random() < 0.5 else tx.colored(rng)
-                sc.structure.append(_wall_box(k, rx, ry, s0, s0 + pw, 0.0, 0.02, zc - ph / 2, zc + ph / 2, frame))
-                sc.structure.append(_wall_box(k, rx, ry, s0 + 0.04, s0 + pw - 0.04, 0.02, 0.025, zc - ph / 2 + 0.04,
-                                              zc + ph / 2 - 0.04, tx.colored(rng)))
-            elif r < 0.8:
-                sc.structure.append(_wall_box(k, rx, ry, s0, s0 + pw * 1.5 if s0 + pw * 1.5 < L else s0 + pw, 0.0, 0.02,
-                                              zc - ph / 2, zc + ph / 2, tx.Material(tx.PLAIN, (0.95, 0.95, 0.95), (0, 0, 0),
-                                                                                     0.1, 0.6, 0.9, 0.0)))
-            else:
-                sm = tx.wood(rng)
-                sc.structure.append(_wall_box(k, rx, ry, s0, s0 + pw, 0.0, 0.25, zc, zc + 0.025, sm))
-                b = s0 + 0.05
-                while b < s0 + pw - 0.1:
-                    bt = rng.uniform(0.02, 0.05)
-                    sc.structure.append(_wall_box(k, rx, ry, b, b + bt, 0.02, rng.uniform(0.15, 0.22), zc + 0.025,
-                                                  zc + 0.025 + rng.uniform(0.15, 0.25), tx.book(rng)))
-                    b += bt + rng.uniform(0.0, 0.1)
-
-
 # --------------------------------------------------------------------------- placement
 
 ROOM_TYPES = ("bedroom", "living", "dining", "office", "bathroom", "classroom", "store")
@@ -282,7 +82,7 @@ class _Placer:
         self.floor = _Floor(sc.rx, sc.ry)
         for k, s0, s1, z0, z1, kind in doors:  # door swing keep-out zones
             if kind == "door":
-                o, a, n, _ = _wall_frame(k, sc.rx, sc.ry)
+                o, a, n, _ = wall_frame(k, sc.rx, sc.ry)
                 c = o + 0.5 * (s0 + s1) * a + 0.45 * n
                 self.floor.add((c, np.array([0.5 * (s1 - s0) + 0.05, 0.45]), float(np.arctan2(a[1], a[0]))))
 
@@ -305,7 +105,7 @@ class _Placer:
     def wall_pose(self, model: Model, k: int | None = None, corner: bool | None = None) -> tuple[np.ndarray, float]:
         rng = self.rng
         k = int(rng.integers(4)) if k is None else k
-        o, a, n, L = _wall_frame(k, self.sc.rx, self.sc.ry)
+        o, a, n, L = wall_frame(k, self.sc.rx, self.sc.ry)
         lo, hi = model.bounds()
         yaw = float(np.arctan2(n[1], n[0]))
         smin, smax = hi[1], L + lo[1]
@@ -472,7 +272,7 @@ class _Placer:
         return False
 
     def clutter_floor(self, kind: str, wall: bool, tries: int = 15) -> bool:
-        m = fu.clutter(kind, self.rng)
+        m = clutter_items.clutter(kind, self.rng)
         for _ in range(tries):
             pos, yaw = self.wall_pose(m) if wall else self.free_pose(m, aligned=0.3)
             if self._try([Placed(m, pos, yaw)], [False]):
@@ -487,10 +287,10 @@ def _surface_clutter(sc: Scene, host: Placed, rng: np.random.Generator, n: int) 
         if x1 - x0 < 0.1 or y1 - y0 < 0.1:
             continue
         for _ in range(n):
-            kind = str(rng.choice(fu.SURFACE_CLUTTER))
+            kind = str(rng.choice(clutter_items.SURFACE_CLUTTER))
             if host.model.name in ("bed", "chair", "sofa"):
                 kind = str(rng.choice(["clothes", "clothes", "small", "books", "bag"]))
-            item = fu.clutter(kind, rng)
+            item = clutter_items.clutter(kind, rng)
             lo, hi = item.bounds()
             for _t in range(6):
                 yaw_l = rng.uniform(-np.pi, np.pi) if rng.random() < 0.5 else float(rng.integers(4)) * np.pi / 2
@@ -509,10 +309,8 @@ def _surface_clutter(sc: Scene, host: Placed, rng: np.random.Generator, n: int) 
                 break
 
 
-def build_scene(rng: np.random.Generator, min_objects: int = 2, max_objects: int = 12,
-                room_type: str | None = None, clutter_level: float = 1.0) -> Scene:
-    """Sample a furnished room. ``min/max_objects`` bound the labelled objects in the room."""
-    rt = room_type or str(rng.choice(ROOM_TYPES, p=_ROOM_P / _ROOM_P.sum()))
+def _room_shell(rng: np.random.Generator, rt: str) -> Scene:
+    """An empty room of type ``rt``: floor, ceiling with its lamps, walls, lights."""
     bath = rt == "bathroom"
     if bath:
         rx, ry = rng.uniform(1.8, 3.6), rng.uniform(1.8, 3.6)
@@ -534,39 +332,86 @@ def build_scene(rng: np.random.Generator, min_objects: int = 2, max_objects: int
             s = rng.uniform(0.2, 0.6)
             sc.structure.append(Static(np.array([lx, ly, H - 0.01]), np.array([s, s * rng.uniform(1, 2), 0.02]), np.eye(3),
                                        tx.emissive(rng)))
-    _build_walls(sc, rng, bath)
-    # lights
+    build_walls(sc, rng, bath)
     for _ in range(int(rng.integers(1, 4))):
         p = np.array([rng.uniform(0, rx), rng.uniform(0, ry), H - rng.uniform(0.1, 0.6)])
         col = np.array([1.0, rng.uniform(0.88, 1.0), rng.uniform(0.7, 1.0)])
         sc.lights.append((p, float(rng.uniform(0.5, 1.2)), col))
     sc.ambient = float(rng.uniform(0.25, 0.5))
+    return sc
 
-    pl = _Placer(sc, rng, max_objects, sc.openings)
-    if rng.random() < 0.35 * clutter_level:  # rug first (flat, ignored by collisions)
-        rug = fu.clutter("rug", rng)
-        p, yaw = pl.free_pose(rug, aligned=0.9)
-        sc.clutter.append(Placed(rug, p, yaw))
-    plan: list[str] = []
+
+def _furniture_plan(rng: np.random.Generator, rt: str) -> list[str]:
+    """What a room of type ``rt`` gets, in placement order (``*_row``: a row of that class)."""
     if rt == "bedroom":
-        plan = ["bed"] + [x for x, p in (("dresser", 0.5), ("desk", 0.35), ("bookshelf", 0.3), ("chair", 0.35),
+        return ["bed"] + [x for x, p in (("dresser", 0.5), ("desk", 0.35), ("bookshelf", 0.3), ("chair", 0.35),
                                           ("night_stand", 0.1), ("sofa", 0.1), ("table", 0.1)) if rng.random() < p]
-    elif rt == "living":
-        plan = ["sofa"] + [x for x, p in (("sofa", 0.35), ("bookshelf", 0.4), ("chair", 0.4), ("table", 0.3),
+    if rt == "living":
+        return ["sofa"] + [x for x, p in (("sofa", 0.35), ("bookshelf", 0.4), ("chair", 0.4), ("table", 0.3),
                                            ("dresser", 0.15), ("chair", 0.2), ("desk", 0.1)) if rng.random() < p]
-    elif rt == "dining":
-        plan = ["table"] + [x for x, p in (("table", 0.25), ("dresser", 0.3), ("bookshelf", 0.25), ("sofa", 0.1))
+    if rt == "dining":
+        return ["table"] + [x for x, p in (("table", 0.25), ("dresser", 0.3), ("bookshelf", 0.25), ("sofa", 0.1))
                             if rng.random() < p]
-    elif rt == "office":
-        plan = ["desk"] * int(rng.integers(1, 4)) + [x for x, p in (("bookshelf", 0.5), ("bookshelf_row", 0.2),
+    if rt == "office":
+        return ["desk"] * int(rng.integers(1, 4)) + [x for x, p in (("bookshelf", 0.5), ("bookshelf_row", 0.2),
                                                                       ("table", 0.3), ("chair", 0.3), ("sofa", 0.1),
                                                                       ("dresser", 0.1)) if rng.random() < p]
-    elif rt == "bathroom":
-        plan = ["toilet"] + [x for x, p in (("bathtub", 0.7), ("dresser", 0.1)) if rng.random() < p]
-    elif rt == "classroom":
-        plan = ["table"] * int(rng.integers(2, 6)) + [x for x, p in (("bookshelf", 0.4), ("desk", 0.3)) if rng.random() < p]
-    else:  # furniture store / mixed
-        plan = [str(c) for c in rng.choice(list(CLASSES) + ["bookshelf_row", "dresser_row"], size=int(rng.integers(4, 10)))]
+    if rt == "bathroom":
+        return ["toilet"] + [x for x, p in (("bathtub", 0.7), ("dresser", 0.1)) if rng.random() < p]
+    if rt == "classroom":
+        return ["table"] * int(rng.integers(2, 6)) + [x for x, p in (("bookshelf", 0.4), ("desk", 0.3)) if rng.random() < p]
+    # furniture store / mixed
+    return [str(c) for c in rng.choice(list(CLASSES) + ["bookshelf_row", "dresser_row"], size=int(rng.integers(4, 10)))]
+
+
+def _place(pl: _Placer, rng: np.random.Generator, item: str) -> None:
+    """Place one planned item (a group where the class has one)."""
+    if item == "bed":
+        pl.bed_group()
+    elif item == "table":
+        pl.table_group() if rng.random() < 0.8 else pl.single("table", wall=rng.random() < 0.5)
+    elif item == "desk":
+        pl.desk_group()
+    elif item == "sofa":
+        pl.sofa_group()
+    elif item in ("bookshelf_row", "dresser_row"):
+        pl.row(item.split("_")[0])
+    elif item == "chair":
+        pl.single("chair", wall=rng.random() < 0.4)
+    elif item == "bathtub":
+        pl.single("bathtub", wall=True)
+    else:
+        pl.single(item, wall=rng.random() < 0.9)
+
+
+def _clutter(sc: Scene, pl: _Placer, rng: np.random.Generator, clutter_level: float) -> None:
+    """Unlabelled furniture, floor clutter, and things on furniture surfaces."""
+    if sc.room_type == "bathroom":
+        pl.clutter_floor("sink", wall=True)
+    n_floor = int(rng.poisson(4.5 * clutter_level))
+    for _ in range(n_floor):
+        kind = str(rng.choice(clutter_items.FLOOR_CLUTTER))
+        if kind == "person" and rng.random() < 0.6:
+            continue
+        pl.clutter_floor(kind, wall=kind in ("cabinet", "tv", "box") and rng.random() < 0.7)
+    if rng.random() < 0.3 * clutter_level:
+        pl.clutter_floor("radiator", wall=True)
+    for host in list(sc.objects) + [c for c in sc.clutter if c.model.surfaces]:
+        if host.model.surfaces and rng.random() < 0.7 * clutter_level:
+            _surface_clutter(sc, host, rng, int(rng.integers(1, 6)))
+
+
+def build_scene(rng: np.random.Generator, min_objects: int = 2, max_objects: int = 12,
+                room_type: str | None = None, clutter_level: float = 1.0) -> Scene:
+    """Sample a furnished room. ``min/max_objects`` bound the labelled objects in the room."""
+    rt = room_type or str(rng.choice(ROOM_TYPES, p=_ROOM_P / _ROOM_P.sum()))
+    sc = _room_shell(rng, rt)
+    pl = _Placer(sc, rng, max_objects, sc.openings)
+    if rng.random() < 0.35 * clutter_level:  # rug first (flat, ignored by collisions)
+        rug = clutter_items.clutter("rug", rng)
+        p, yaw = pl.free_pose(rug, aligned=0.9)
+        sc.clutter.append(Placed(rug, p, yaw))
+    plan = _furniture_plan(rng, rt)
     # fill up to min_objects with items that fit the room
     fillers = {"bathroom": ["toilet", "bathtub", "dresser"], "bedroom": ["night_stand", "dresser", "chair", "bookshelf"],
                "dining": ["chair", "table", "dresser"]}.get(rt, ["chair", "table", "bookshelf", "dresser", "desk", "sofa"])
@@ -575,39 +420,10 @@ def build_scene(rng: np.random.Generator, min_objects: int = 2, max_objects: int
     for item in plan:
         if not pl.room_left():
             break
-        if item == "bed":
-            pl.bed_group()
-        elif item == "table":
-            pl.table_group() if rng.random() < 0.8 else pl.single("table", wall=rng.random() < 0.5)
-        elif item == "desk":
-            pl.desk_group()
-        elif item == "sofa":
-            pl.sofa_group()
-        elif item in ("bookshelf_row", "dresser_row"):
-            pl.row(item.split("_")[0])
-        elif item == "chair":
-            pl.single("chair", wall=rng.random() < 0.4)
-        elif item == "bathtub":
-            pl.single("bathtub", wall=True)
-        else:
-            pl.single(item, wall=rng.random() < 0.9)
+        _place(pl, rng, item)
     extra = 0
     while pl.n_labelled() < min_objects and extra < 20:
         pl.single(str(rng.choice(fillers if extra < 10 else list(CLASSES))), wall=rng.random() < 0.7)
         extra += 1
-    # unlabelled furniture & floor clutter
-    if bath:
-        pl.clutter_floor("sink", wall=True)
-    n_floor = int(rng.poisson(4.5 * clutter_level))
-    for _ in range(n_floor):
-        kind = str(rng.choice(fu.FLOOR_CLUTTER))
-        if kind == "person" and rng.random() < 0.6:
-            continue
-        pl.clutter_floor(kind, wall=kind in ("cabinet", "tv", "box") and rng.random() < 0.7)
-    if rng.random() < 0.3 * clutter_level:
-        pl.clutter_floor("radiator", wall=True)
-    # things on furniture
-    for host in list(sc.objects) + [c for c in sc.clutter if c.model.surfaces]:
-        if host.model.surfaces and rng.random() < 0.7 * clutter_level:
-            _surface_clutter(sc, host, rng, int(rng.integers(1, 6)))
+    _clutter(sc, pl, rng, clutter_level)
     return sc

@@ -293,6 +293,36 @@ def surface_attributes(depth: np.ndarray, fid: np.ndarray, faces: Faces, K: np.n
     return pix, f, P, N, s, t
 
 
+def _highlight(sel: np.ndarray, L: tuple[np.ndarray, np.ndarray, np.ndarray], il: np.ndarray, inv: np.ndarray,
+               Ph: np.ndarray, Nh: np.ndarray, att: np.ndarray, spec_h: np.ndarray) -> np.ndarray:
+    """Blinn-Phong highlight (exponent 40) of the pixels ``sel`` from one point light:
+    ``L`` the unnormalised light vectors, ``il`` their inverse lengths, ``inv`` the inverse
+    distances of the points ``Ph`` (3, M) to the camera, ``Nh`` their normals."""
+    Lx, Ly, Lz = L
+    ils, iv = il[sel], inv[sel]
+    hx = Lx[sel] * ils - Ph[0, sel] * iv
+    hy = Ly[sel] * ils - Ph[1, sel] * iv
+    hz = Lz[sel] * ils - Ph[2, sel] * iv
+    hn = 1.0 / (np.sqrt(hx * hx + hy * hy + hz * hz) + 1e-9)
+    nh = np.maximum((Nh[0, sel] * hx + Nh[1, sel] * hy + Nh[2, sel] * hz) * hn, 0)
+    nh2 = nh * nh
+    nh8 = nh2 * nh2
+    nh8 *= nh8
+    nh32 = nh8 * nh8
+    nh32 *= nh32
+    return att[sel] * nh32 * nh8 * np.float32(1.5) * spec_h[sel] * np.float32(0.35)
+
+
+def _occlusion(depth: np.ndarray) -> np.ndarray:
+    """Cheap ambient occlusion at half resolution (flattened): depth-buffer unsharp masking
+    darkens creases and contact regions."""
+    zf = np.where(np.isfinite(depth), depth, np.float32(20.0)).astype(np.float32)
+    zh = np.ascontiguousarray(zf[::2, ::2])
+    zb = cv2.blur(zh, (15, 15))
+    ao = (zh - zb) / np.maximum(zh, np.float32(0.3))
+    return np.clip(1.0 - 2.5 * np.maximum(ao, 0), 0.45, 1.0).ravel()
+
+
 def shade(depth: np.ndarray, fid: np.ndarray, faces: Faces, mats: np.ndarray, K: np.ndarray,
           origin_cam: np.ndarray, light: Lighting, rng: np.random.Generator,
           attrs=None) -> tuple[np.ndarray, np.ndarray]:
@@ -325,9 +355,7 @@ def shade(depth: np.ndarray, fid: np.ndarray, faces: Faces, mats: np.ndarray, K:
     Nh = np.ascontiguousarray(Nf.reshape(3, H, W)[:, ::2, ::2]).reshape(3, -1)
     fh = fk.reshape(H, W)[::2, ::2].ravel()
     spec_h = np.where(fh >= 0, spec_face[np.maximum(fh, 0)], 0).astype(np.float32)
-    M = Ph.shape[1]
-    diff = np.zeros((3, M), np.float32)
-    specc = np.zeros(M, np.float32)
+    diff, specc = np.zeros((3, Ph.shape[1]), np.float32), np.zeros(Ph.shape[1], np.float32)
     has_spec = np.flatnonzero(spec_h > 0.15)
     inv = 1.0 / np.sqrt(Ph[0] * Ph[0] + Ph[1] * Ph[1] + Ph[2] * Ph[2])
     for li, (pos, inten, col) in enumerate(light.points):
@@ -342,19 +370,7 @@ def shade(depth: np.ndarray, fid: np.ndarray, faces: Faces, mats: np.ndarray, K:
         for c in range(3):
             diff[c] += w * np.float32(col[c])
         if li == 0 and len(has_spec):  # highlights from the first (main) light only
-            sel = has_spec
-            ils, iv = il[sel], inv[sel]
-            hx = Lx[sel] * ils - Ph[0, sel] * iv
-            hy = Ly[sel] * ils - Ph[1, sel] * iv
-            hz = Lz[sel] * ils - Ph[2, sel] * iv
-            hn = 1.0 / (np.sqrt(hx * hx + hy * hy + hz * hz) + 1e-9)
-            nh = np.maximum((Nh[0, sel] * hx + Nh[1, sel] * hy + Nh[2, sel] * hz) * hn, 0)
-            nh2 = nh * nh
-            nh8 = nh2 * nh2
-            nh8 *= nh8
-            nh32 = nh8 * nh8
-            nh32 *= nh32
-            specc[sel] += att[sel] * nh32 * nh8 * np.float32(1.5) * spec_h[sel] * np.float32(0.35)
+            specc[has_spec] += _highlight(has_spec, (Lx, Ly, Lz), il, inv, Ph, Nh, att, spec_h)
     if light.sun is not None:
         sd, si = light.sun
         sd = np.asarray(sd, np.float32)
@@ -362,12 +378,7 @@ def shade(depth: np.ndarray, fid: np.ndarray, faces: Faces, mats: np.ndarray, K:
         for c, cc in enumerate((1.0, 0.97, 0.9)):
             diff[c] += ndl * np.float32(cc)
     diff += np.float32(light.ambient)
-    # depth-buffer unsharp masking: darkens creases and contact regions (cheap ambient occlusion)
-    zf = np.where(np.isfinite(depth), depth, np.float32(20.0)).astype(np.float32)
-    zh = np.ascontiguousarray(zf[::2, ::2])
-    zb = cv2.blur(zh, (15, 15))
-    ao = (zh - zb) / np.maximum(zh, np.float32(0.3))
-    ao = np.clip(1.0 - 2.5 * np.maximum(ao, 0), 0.45, 1.0).ravel()
+    ao = _occlusion(depth)
     lit = np.empty((h2, w2, 4), np.float32)
     for c in range(3):
         lit[:, :, c] = (diff[c] * ao).reshape(h2, w2)
