@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -115,6 +116,37 @@ def _vec3(types: MsgTypes, v: Any) -> Any:
     return types.make(types.Vector3, x=float(v[0]), y=float(v[1]), z=float(v[2]))
 
 
+def delete_all_marker(types: MsgTypes, header: Any) -> Any:
+    """A DELETEALL marker (ns ``''``, id 0): clears what earlier arrays on the topic drew."""
+    return types.make(
+        types.Marker, header=header, ns="", id=0, type=CUBE, action=DELETEALL,
+        pose=make_pose(types, np.zeros(3), np.eye(3)), scale=_vec3(types, (1.0, 1.0, 1.0)),
+        color=_color(types, (1.0, 1.0, 1.0), 1.0),
+    )
+
+
+def _box_markers(marker: Callable[..., Any], types: MsgTypes, i: int, obj: Object3D, rgb: Sequence[float],
+                 box_alpha: float) -> list[Any]:
+    """The translucent CUBE, the LINE_LIST of the 12 edges and the label of object ``i``."""
+    M = types.make
+    center = np.asarray(obj.center, dtype=np.float64).reshape(3)
+    size = np.asarray(obj.size, dtype=np.float64).reshape(3)
+    R = np.asarray(obj.rotation, dtype=np.float64).reshape(3, 3)
+    corners = box_corners(center, size, R)
+    pts = [M(types.Point, x=float(p[0]), y=float(p[1]), z=float(p[2])) for e in BOX_EDGES for p in corners[list(e)]]
+    up = R[:, 2] / max(np.linalg.norm(R[:, 2]), 1e-12)
+    label_pos = center + up * (0.5 * size[2] + LABEL_GAP)
+    return [
+        marker(NS_BOXES, i, CUBE, pose=make_pose(types, center, R),
+               scale=_vec3(types, np.maximum(size, MIN_SCALE)), color=_color(types, rgb, box_alpha)),
+        marker(NS_WIREFRAMES, i, LINE_LIST, pose=make_pose(types, np.zeros(3), np.eye(3)),
+               scale=_vec3(types, (LINE_WIDTH, 0.0, 0.0)), color=_color(types, rgb, 1.0), points=pts),
+        marker(NS_LABELS, i, TEXT_VIEW_FACING, pose=make_pose(types, label_pos, np.eye(3)),
+               scale=_vec3(types, (0.0, 0.0, TEXT_HEIGHT)), color=_color(types, rgb, 1.0),
+               text=f"{obj.class_name} {float(obj.score):.2f}"),
+    ]
+
+
 def objects_to_markers(
     objects: Sequence[Object3D],
     types: MsgTypes,
@@ -135,73 +167,24 @@ def objects_to_markers(
     """
     if not 0.0 < box_alpha <= 1.0:
         raise ValueError(f"box_alpha={box_alpha} must be in (0, 1]")
-    M = types.make
     header = make_header(types, stamp_ns, frame_id)
     lifetime = seconds_to_duration(lifetime_s, types)
-    identity = np.eye(3)
 
     def marker(ns: str, mid: int, mtype: int, **kw: Any) -> Any:
         kw.setdefault("lifetime", lifetime)
-        return M(types.Marker, header=header, ns=ns, id=int(mid), type=mtype, action=ADD, **kw)
+        return types.make(types.Marker, header=header, ns=ns, id=int(mid), type=mtype, action=ADD, **kw)
 
-    markers = [
-        M(
-            types.Marker,
-            header=header,
-            ns="",
-            id=0,
-            type=CUBE,
-            action=DELETEALL,
-            pose=make_pose(types, np.zeros(3), identity),
-            scale=_vec3(types, (1.0, 1.0, 1.0)),
-            color=_color(types, (1.0, 1.0, 1.0), 1.0),
-        )
-    ]
+    markers = [delete_all_marker(types, header)]
     prim_id = 0
     for i, obj in enumerate(objects):
         rgb = class_color(obj.class_name)
-        center = np.asarray(obj.center, dtype=np.float64).reshape(3)
-        size = np.asarray(obj.size, dtype=np.float64).reshape(3)
-        R = np.asarray(obj.rotation, dtype=np.float64).reshape(3, 3)
-        markers.append(
-            marker(
-                NS_BOXES, i, CUBE,
-                pose=make_pose(types, center, R),
-                scale=_vec3(types, np.maximum(size, MIN_SCALE)),
-                color=_color(types, rgb, box_alpha),
-            )
-        )
-        corners = box_corners(center, size, R)
-        pts = [M(types.Point, x=float(p[0]), y=float(p[1]), z=float(p[2])) for e in BOX_EDGES for p in corners[list(e)]]
-        markers.append(
-            marker(
-                NS_WIREFRAMES, i, LINE_LIST,
-                pose=make_pose(types, np.zeros(3), identity),
-                scale=_vec3(types, (LINE_WIDTH, 0.0, 0.0)),
-                color=_color(types, rgb, 1.0),
-                points=pts,
-            )
-        )
-        up = R[:, 2] / max(np.linalg.norm(R[:, 2]), 1e-12)
-        label_pos = center + up * (0.5 * size[2] + LABEL_GAP)
-        markers.append(
-            marker(
-                NS_LABELS, i, TEXT_VIEW_FACING,
-                pose=make_pose(types, label_pos, identity),
-                scale=_vec3(types, (0.0, 0.0, TEXT_HEIGHT)),
-                color=_color(types, rgb, 1.0),
-                text=f"{obj.class_name} {float(obj.score):.2f}",
-            )
-        )
+        markers += _box_markers(marker, types, i, obj, rgb, box_alpha)
         if show_primitives:
             for prim in obj.primitives:
-                markers.append(
-                    marker(
-                        NS_PRIMITIVES, prim_id, CUBE,
-                        pose=make_pose(types, prim.center, prim.rotation),
-                        scale=_vec3(types, np.maximum(np.asarray(prim.size, dtype=np.float64), MIN_SCALE)),
-                        color=_color(types, rgb, PRIMITIVE_ALPHA),
-                    )
-                )
+                markers.append(marker(
+                    NS_PRIMITIVES, prim_id, CUBE, pose=make_pose(types, prim.center, prim.rotation),
+                    scale=_vec3(types, np.maximum(np.asarray(prim.size, dtype=np.float64), MIN_SCALE)),
+                    color=_color(types, rgb, PRIMITIVE_ALPHA),
+                ))
                 prim_id += 1
-    return M(types.MarkerArray, markers=markers)
+    return types.make(types.MarkerArray, markers=markers)
