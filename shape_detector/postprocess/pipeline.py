@@ -48,7 +48,10 @@ class PostContext:
 class Step(Protocol):
     """One post-processing step."""
 
-    name: str
+    @property
+    def name(self) -> str:
+        """The step's name, as hooks see it."""
+        ...
 
     def __call__(self, objects: list[Object3D], ctx: PostContext) -> list[Object3D]:
         """The objects after this step (new or updated objects; inputs may be reused)."""
