@@ -15,16 +15,19 @@ from shape_detector.model.config import ModelConfig
 from shape_detector.model.io import load_checkpoint, load_weights
 from shape_detector.model.primitives import coverage_loss
 from shape_detector.training import frustum_dataset as fds
-from shape_detector.training.train import TensorData, TrainConfig, calibration_stats, fit_temperature, train
+from shape_detector.training.calibration import calibration_stats, fit_temperature
+from shape_detector.training.config import TrainConfig
+from shape_detector.training.tensor_data import TensorData
+from shape_detector.training.train import train
 
 from test_model_scene import make_frame
 from tolerances import assert_outputs_close, changed_keys, outputs_differ
 
-
-
-
+# a small network without the later branches (the ModelConfig defaults are the shipped network,
+# which has them): the tests grow each branch onto it
 SMALL = dict(num_points=128, num_object_points=64, seg_widths=[16, 16, 32], seg_head_widths=[16], tnet_widths=[16, 32],
-             tnet_fc=[16], box_widths=[16, 32], box_fc=[32], shape_fc=[32], cls_fc=[16])
+             tnet_fc=[16], box_widths=[16, 32], box_fc=[32], shape_fc=[32], shape_widths=[16, 32], cls_fc=[16],
+             box_context_widths=[], box2_widths=[], shape_context_widths=[], shape_anchors=False)
 
 
 @pytest.fixture(scope="module")
@@ -201,7 +204,7 @@ def test_init_weights_fine_tunes_from_a_trained_model(ds, tmp_path):
 
 
 def test_class_path_frozen_names_the_modules_the_class_logits_never_read():
-    from shape_detector.training.train import _class_path_frozen
+    from shape_detector.training.init_from import class_path_frozen as _class_path_frozen
 
     assert _class_path_frozen(["shape_ctx_mlp", "shape_mlp", "shape_head", "shape_anchor"])
     assert _class_path_frozen(["box2_mlp", "box2_head"]) and _class_path_frozen(["ctx_mlp", "box_head"])
@@ -223,35 +226,36 @@ def test_trainable_prefixes_freeze_the_rest(ds, tmp_path):
     sa, sb = a.state_dict(), b.state_dict()
     changed = changed_keys(sa, sb, ignore=["cls_temperature"])
     assert changed and all(k.startswith(("shape_mlp", "shape_head")) for k in changed), changed
-    with pytest.raises(ValueError, match="no parameter"):
+    with pytest.raises(ValueError, match="no network part"):
         train(_cfg(epochs=1, trainable=["nothing_here"]), tr, va, tmp_path / "c", seed=4, print_fn=lambda s: None)
 
 
 def test_reinit_starts_modules_fresh_and_may_change_the_primitive_mapping(ds, tmp_path):
     """reinit=[...]: those modules start from a fresh initialisation (all others from --init);
-    re-initialising the shape head allows another primitive mapping, nothing else may differ."""
+    re-initialising the shape head allows another primitive mapping (its minimum size), nothing
+    else may differ."""
     tr, va = fds.split_by_frame(ds, 0.34, seed=0)
-    train(_cfg(epochs=1, model=dict(SMALL, primitive_param="sigmoid_tanh")), tr, va, tmp_path / "a", seed=3,
-          print_fn=lambda s: None)
+    train(_cfg(epochs=1), tr, va, tmp_path / "a", seed=3, print_fn=lambda s: None)
     init = tmp_path / "a" / "weights.pt"
+    other_mapping = dict(SMALL, primitive_min_size_frac=0.02)
     logs = []
-    train(_cfg(epochs=1, tasks="shape", model=dict(SMALL, primitive_param="exp_linear"), reinit=["shape_head"],
+    train(_cfg(epochs=1, tasks="shape", model=other_mapping, reinit=["shape_head"],
                trainable=["shape_mlp", "shape_head"], lr=1e-9), tr, va, tmp_path / "b", seed=4,
           print_fn=logs.append, init_weights=init)
     assert any("fresh" in s for s in logs)
     a, _ = load_weights(init)
     b, _ = load_weights(tmp_path / "b" / "weights.pt")
-    assert b.config.primitive_param == "exp_linear"
+    assert b.config.primitive_min_size_frac == pytest.approx(0.02)
     sa, sb = a.state_dict(), b.state_dict()
     fresh = {k for k in sa if k.startswith("shape_head") and not torch.allclose(sa[k].float(), sb[k].float())}
-    assert "shape_head.out.bias" in fresh  # the exp_linear initial bias, not the init's
+    assert "shape_head.out.weight" in fresh  # a fresh initialisation, not the init's trained layer
     assert all(k.startswith(("shape_head", "shape_mlp", "cls_temperature")) for k in changed_keys(sa, sb))
     with pytest.raises(ValueError, match="model config"):  # the mapping may only change with a fresh head
-        train(_cfg(epochs=1, model=dict(SMALL, primitive_param="exp_linear")), tr, va, tmp_path / "c", seed=4,
+        train(_cfg(epochs=1, model=other_mapping), tr, va, tmp_path / "c", seed=4,
               print_fn=lambda s: None, init_weights=init)
-    with pytest.raises(ValueError, match="no parameter"):
-        train(_cfg(epochs=1, model=dict(SMALL, primitive_param="sigmoid_tanh"), reinit=["nothing_here"]), tr, va,
-              tmp_path / "d", seed=4, print_fn=lambda s: None, init_weights=init)
+    with pytest.raises(ValueError, match="no network part"):
+        train(_cfg(epochs=1, reinit=["nothing_here"]), tr, va, tmp_path / "d", seed=4, print_fn=lambda s: None,
+              init_weights=init)
 
 
 def test_shape_anchors_start_at_the_class_templates_and_carry_over(ds, tmp_path):
@@ -295,13 +299,13 @@ def _grown_from_trained(ds, tmp_path, model: dict):
     reordering noise: the grown layers multiply by zero-started columns).
     Returns (train split, val split, a, a's outputs on 6 validation frustums, that batch)."""
     from shape_detector.model.network import FrustumShapeNet
-    from shape_detector.training.train import _load_init
+    from shape_detector.training.init_from import load_init
 
     tr, va = fds.split_by_frame(ds, 0.34, seed=0)
     train(_cfg(epochs=1), tr, va, tmp_path / "a", seed=3, print_fn=lambda s: None)
     a, _ = load_weights(tmp_path / "a" / "weights.pt")
     b = FrustumShapeNet(_cfg(model=model).model_config())
-    _load_init(b, a, None)
+    load_init(b, a, None)
     a.eval(), b.eval()
     batch = TensorData(va, torch.device("cpu"), a.config.num_classes).batch(torch.arange(6), one_hot_mode="given")
     with torch.no_grad():
@@ -342,7 +346,7 @@ def test_shape_context_branch_starts_as_the_init_model_and_moves_only_the_shape(
     ctx_model = dict(SMALL, shape_context_widths=[16, 32])
     tr, va, a, oa, batch = _grown_from_trained(ds, tmp_path, ctx_model)
     train(_cfg(epochs=1, model=ctx_model, tasks="box,shape,cls", lr=0.01,
-               trainable=["shape_ctx_mlp", "shape_mlp", "shape_head", "shape_anchor"]), tr, va, tmp_path / "b",
+               trainable=["shape_ctx_mlp", "shape_mlp", "shape_head"]), tr, va, tmp_path / "b",
           seed=4, print_fn=lambda s: None, init_weights=tmp_path / "a" / "weights.pt")
     c, meta = load_weights(tmp_path / "b" / "weights.pt")
     assert c.config.shape_context_widths == (16, 32)

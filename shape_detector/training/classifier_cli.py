@@ -28,6 +28,7 @@ import numpy as np
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``train-classifier``."""
     p.add_argument("--data", type=Path, nargs="+", required=True, help="generator shard directories")
     p.add_argument("--out", type=Path, required=True, help="run directory")
     p.add_argument("--weights", type=Path, default=None, help="network weights (default: the packaged ones)")
@@ -85,8 +86,8 @@ def build_all(
     if jobs:
         print(f"building candidates: {len(jobs)} jobs on {workers} processes", flush=True)
         if workers > 1:
-            from concurrent.futures import ProcessPoolExecutor
             import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor
 
             os.environ.setdefault("OMP_NUM_THREADS", "1")  # read by the spawned processes' numpy / torch
             with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as ex:
@@ -112,6 +113,7 @@ def load_candidates(paths: list[Path]) -> dict[str, np.ndarray]:
 
 
 def main(args: argparse.Namespace) -> int:
+    """Build (or reuse) the candidates and train the classifier; exit 2 for missing data."""
     from .train_classifier import ClassifierTrainConfig, train_classifier
 
     for d in args.data:

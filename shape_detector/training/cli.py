@@ -147,11 +147,31 @@ def main_single(args: argparse.Namespace) -> int:
     return 3 if final.get("stopped_early") else 0
 
 
+#: options of an ad-hoc run (with their "not given" values): a recipe says all of this itself
+_AD_HOC = {"config": None, "data": None, "val_data": None, "seed": 0, "epochs": None, "resume": False, "init": None,
+           "tasks": None, "max_frames": None, "max_val_frames": None, "threads": None, "set": []}
+#: options of a recipe run only
+_RECIPE_ONLY = {"phase": None, "export": None}
+
+
+def _misplaced(args: argparse.Namespace, options: dict[str, Any]) -> list[str]:
+    return ["--" + k.replace("_", "-") for k, unset in options.items() if getattr(args, k, unset) != unset]
+
+
 def main(args: argparse.Namespace) -> int:
     """``train``: a recipe with ``--recipe``, else one ad-hoc run (needs ``--data`` and ``--out``)."""
     try:
         if args.recipe is not None:
+            bad = _misplaced(args, _AD_HOC)
+            if bad:
+                print(f"shape-detector train: {', '.join(bad)} do not apply to --recipe (the recipe sets them; "
+                      "a finished phase is skipped, an unfinished one resumes)", file=sys.stderr)
+                return 2
             return main_recipe(args)
+        bad = _misplaced(args, _RECIPE_ONLY)
+        if bad:
+            print(f"shape-detector train: {', '.join(bad)} need --recipe", file=sys.stderr)
+            return 2
         if not args.data or args.out is None:
             print("shape-detector train: give --recipe FILE, or --data and --out for one run", file=sys.stderr)
             return 2

@@ -62,7 +62,7 @@ class TrainConfig:
     num_threads: int = 1  # 2 only on an idle machine: oversubscribed OpenMP threads are ~20x slower
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any] | None) -> "TrainConfig":
+    def from_dict(cls, d: dict[str, Any] | None) -> TrainConfig:
         """Config from overrides of the defaults; unknown keys are refused."""
         d = dict(d or {})
         names = set(cls.__dataclass_fields__)

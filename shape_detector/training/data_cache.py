@@ -13,8 +13,9 @@ from __future__ import annotations
 import itertools
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from .provenance import dataset_identity, sha256_file, sha256_json
 
@@ -80,8 +81,8 @@ def get_frustums(source: str | Path, cfg_data: dict[str, Any], num_points: int, 
                  max_frames: int | None = None, say: Callable[[str], None] = print) -> dict:
     """Frustum dataset of ``source``: a frustum ``.npz`` as is, or built from generated
     shards and cached in ``cache_dir`` under its content key."""
-    from . import frustum_dataset as fds
     from ..synth.dataset import iter_frames
+    from . import frustum_dataset as fds
 
     source = Path(source)
     if source.is_file() and source.suffix == ".npz":

@@ -59,6 +59,10 @@ NEG_POSITIVE, NEG_CLUTTER, NEG_BACKGROUND, NEG_PARTIAL, NEG_PROPOSAL = 0, 1, 2, 
 
 @dataclass
 class FrustumDatasetConfig:
+    """How frustums are cut from generated frames: points per frustum, jittered copies of each
+    GT 2D box, negatives, GT shape samples, and the built-in proposer's frustums (positives by
+    2D IoU >= ``proposal_pos_iou``, hard negatives below ``proposal_neg_iou``)."""
+
     num_points: int = 512
     augment_copies: int = 2
     rng_seed: int = 0
@@ -79,11 +83,14 @@ class FrustumDatasetConfig:
     proposal_neg_iou: float = 0.25
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any] | None) -> "FrustumDatasetConfig":
+    def from_dict(cls, d: dict[str, Any] | None) -> FrustumDatasetConfig:
+        """Settings from overrides of the defaults (other keys are ignored: a TrainConfig's
+        ``data`` may carry them)."""
         d = dict(d or {})
         return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
 
     def to_dict(self) -> dict[str, Any]:
+        """Plain dict of every field."""
         return asdict(self)
 
 
@@ -206,20 +213,8 @@ def _frame_frustums(frame: Frame, fi: int, cfg: FrustumDatasetConfig, rng: np.ra
             max_depth=cfg.max_depth, points_cam=pts_cam,
         )
 
-    eligible: dict[int, tuple] = {}  # object index -> (fg_valid, class id, heading_u)
+    eligible = _eligible_objects(frame, cfg, depth_ok)
     parts: dict[int, tuple] = {}  # object index -> canonical parts, drawn on first use
-    for oi, obj in enumerate(frame.objects):
-        if obj.class_name not in CLASS_TO_ID or mask is None:
-            continue
-        if obj.visible_fraction < cfg.min_visible:
-            continue
-        x1, y1, x2, y2 = clip_box(obj.box2d, W, H)
-        if x2 <= x1 or y2 <= y1:
-            continue
-        fg_valid = int(np.count_nonzero((mask[y1:y2, x1:x2] == obj.instance_id) & depth_ok[y1:y2, x1:x2]))
-        if fg_valid < cfg.min_points:
-            continue
-        eligible[oi] = (fg_valid, CLASS_TO_ID[obj.class_name], rotation_to_heading(obj.rotation, frame.up))
 
     def add_positive(oi: int, box) -> None:
         obj = frame.objects[oi]
@@ -267,7 +262,35 @@ def _frame_frustums(frame: Frame, fi: int, cfg: FrustumDatasetConfig, rng: np.ra
             box = tuple(obj.box2d) if copy == 0 else jitter_box(obj.box2d, rng, cfg.box_jitter, W, H)
             add_positive(oi, box)
 
-    # negatives
+    _gt_negatives(frame, cfg, rng, gt_boxes, add_negative)
+
+
+def _eligible_objects(frame: Frame, cfg: FrustumDatasetConfig, depth_ok: np.ndarray) -> dict[int, tuple]:
+    """Object index -> (visible foreground pixels with valid depth, class id, heading about up)
+    of the labelled objects visible enough to train on."""
+    W, H = frame.width, frame.height
+    mask = frame.instance_mask
+    eligible: dict[int, tuple] = {}
+    for oi, obj in enumerate(frame.objects):
+        if obj.class_name not in CLASS_TO_ID or mask is None:
+            continue
+        if obj.visible_fraction < cfg.min_visible:
+            continue
+        x1, y1, x2, y2 = clip_box(obj.box2d, W, H)
+        if x2 <= x1 or y2 <= y1:
+            continue
+        fg_valid = int(np.count_nonzero((mask[y1:y2, x1:x2] == obj.instance_id) & depth_ok[y1:y2, x1:x2]))
+        if fg_valid < cfg.min_points:
+            continue
+        eligible[oi] = (fg_valid, CLASS_TO_ID[obj.class_name], rotation_to_heading(obj.rotation, frame.up))
+    return eligible
+
+
+def _gt_negatives(frame: Frame, cfg: FrustumDatasetConfig, rng: np.random.Generator, gt_boxes: list,
+                  add_negative) -> None:
+    """``cfg.negatives_per_frame`` negative frustums, cycling through clutter, partial-object
+    and background boxes (each falling back to the next kind when none is found)."""
+    W, H = frame.width, frame.height
     clutter = list(frame.clutter_boxes)
     kinds = (NEG_CLUTTER, NEG_BACKGROUND, NEG_PARTIAL)
     start = int(rng.integers(3))
@@ -362,6 +385,7 @@ def cls_labels(ds: dict[str, np.ndarray], num_classes: int = NUM_CLASSES) -> np.
 
 
 def num_frustums(ds: dict[str, np.ndarray]) -> int:
+    """Number of frustums (rows) of a dataset."""
     return int(ds["seg"].shape[0])
 
 
@@ -420,15 +444,18 @@ def save(ds: dict[str, np.ndarray], path: str | Path) -> Path:
 
 
 def load(path: str | Path) -> dict[str, np.ndarray]:
+    """A dataset written by :func:`save` (no pickled objects)."""
     with np.load(Path(path), allow_pickle=False) as z:
         return {k: z[k] for k in z.files}
 
 
 def dataset_config(ds: dict[str, np.ndarray]) -> dict[str, Any]:
+    """The extraction settings a dataset was built with ({} when not recorded)."""
     return json.loads(str(ds["__config__"])) if "__config__" in ds else {}
 
 
 def summary(ds: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Counts of a dataset: frustums, positives, negatives, frames, per class and negative kind."""
     neg = ds["is_negative"]
     cls = ds["class_id"][~neg]
     return {

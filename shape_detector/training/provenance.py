@@ -72,14 +72,16 @@ def dataset_identity(path: str | Path) -> dict[str, Any]:
 
 
 def generator_version(index: dict[str, Any]) -> str:
-    """The generator's identity for a data set index: shard format plus a hash of the
-    generator config (what a frame seed is rendered with)."""
-    return f"{index.get('format', 'unknown')}+cfg:{sha256_json(index.get('config'))[:12]}"
+    """The generator's identity for a data set index: shard format, the generator's own version
+    when the index records one (``generator_version``), and a hash of the generator config (what
+    a frame seed is rendered with)."""
+    code = f"+gen:{index['generator_version']}" if index.get("generator_version") is not None else ""
+    return f"{index.get('format', 'unknown')}{code}+cfg:{sha256_json(index.get('config'))[:12]}"
 
 
 def utc_now() -> str:
     """Current UTC time, ISO 8601 with seconds."""
-    return _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
+    return _dt.datetime.now(_dt.UTC).replace(microsecond=0).isoformat()
 
 
 def make_provenance(
@@ -101,7 +103,7 @@ def make_provenance(
         "data": list(data or []),
         "parents": list(parents or []),
         "metrics": dict(metrics or {}),
-        "torch_version": torch.__version__,
+        "torch_version": str(torch.__version__),  # TorchVersion is a str subclass weights_only refuses
         "created_utc": utc_now(),
         "world_size": int(world_size),
         "reconstructed": False,

@@ -9,6 +9,8 @@ other value, lists included, replaces). The resolved recipe has::
                            "tag": "train" | "val"}
     defaults      TrainConfig fields shared by every network phase
     phase_overrides  TrainConfig fields merged over every network phase's own (tiny test runs)
+    classifier_overrides  ClassifierTrainConfig fields merged over every classifier phase's own
+    exports       file name -> phase whose result ``--export DIR`` copies there
     phases        [phase, ...] in training order
 
 A network phase: ``name``; ``init`` (an earlier phase, or null for a fresh network);
@@ -69,7 +71,8 @@ def resolve_path(name: str | Path) -> Path:
     for cand in (RECIPES_DIR / p, RECIPES_DIR / f"{p}.json"):
         if cand.is_file():
             return cand
-    raise FileNotFoundError(f"no recipe {name!r} (neither a file nor one of {sorted(RECIPES_DIR.glob('*.json'))})")
+    packaged = sorted(f.stem for f in RECIPES_DIR.glob("*.json"))
+    raise FileNotFoundError(f"no recipe {name!r}: neither a file nor a packaged recipe ({', '.join(packaged)})")
 
 
 def load_recipe(path: str | Path) -> dict[str, Any]:
@@ -101,9 +104,14 @@ def check(r: dict[str, Any]) -> None:
         if ph.get("kind", "network") == "classifier":
             if ph.get("network") not in names:
                 raise ValueError(f"phase {name}: network {ph.get('network')!r} is not an earlier phase")
-            for d in ph.get("datasets", []):
+            if not ph.get("datasets"):
+                raise ValueError(f"phase {name}: no datasets")
+            for d in ph["datasets"]:
                 if d not in r["datasets"]:
                     raise ValueError(f"phase {name}: unknown data set {d!r}")
+            classifier_train_config(r, ph)  # unknown ClassifierTrainConfig keys fail here
+        elif ph.get("kind", "network") != "network":
+            raise ValueError(f"phase {name}: kind must be 'network' or 'classifier', not {ph['kind']!r}")
         else:
             if ph.get("init") is not None and ph["init"] not in names:
                 raise ValueError(f"phase {name}: init {ph['init']!r} is not an earlier phase")
@@ -119,6 +127,9 @@ def check(r: dict[str, Any]) -> None:
     for fname, f in r["frustums"].items():
         if f.get("dataset") not in r["datasets"]:
             raise ValueError(f"frustum set {fname}: unknown data set {f.get('dataset')!r}")
+    for fname, ph_name in r.get("exports", {}).items():
+        if ph_name not in names:
+            raise ValueError(f"export {fname}: {ph_name!r} is not a phase")
 
 
 def phase(r: dict[str, Any], name: str) -> dict[str, Any]:
@@ -133,3 +144,15 @@ def phase_train_config(r: dict[str, Any], ph: dict[str, Any]) -> TrainConfig:
     """A network phase's TrainConfig: ``defaults``, the phase's ``train``, then ``phase_overrides``."""
     d = deep_merge(deep_merge(r["defaults"], ph.get("train", {})), r["phase_overrides"])
     return TrainConfig.from_dict(d)
+
+
+def classifier_train_config(r: dict[str, Any], ph: dict[str, Any]):
+    """A classifier phase's ClassifierTrainConfig: its ``train``, then ``classifier_overrides``;
+    the seed is the phase's."""
+    from .train_classifier import ClassifierTrainConfig
+
+    d = {**ph.get("train", {}), **r.get("classifier_overrides", {}), "seed": int(ph.get("seed", 0))}
+    bad = set(d) - set(ClassifierTrainConfig.__dataclass_fields__)
+    if bad:
+        raise ValueError(f"phase {ph['name']}: unknown classifier training keys {sorted(bad)}")
+    return ClassifierTrainConfig(**d)

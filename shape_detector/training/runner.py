@@ -2,6 +2,7 @@
 
 Layout under ``out``::
 
+    recipe.json                 the resolved recipe of the last run (inheritance applied, its sha256)
     cache/                      frustum caches (content-keyed, shared by the phases)
     <phase>/phase.json          the phase's key (hash of everything that decides its result)
     <phase>/checkpoint.pt ...   the run (see :mod:`.train`)
@@ -17,13 +18,16 @@ from __future__ import annotations
 import json
 import shutil
 import time
+from collections.abc import Callable
+from dataclasses import asdict
+from functools import partial
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from . import distributed as ddp
 from .data_cache import data_identity, ensure_dataset, frustum_config, frustum_key, get_frustums
 from .provenance import dataset_identity, make_provenance, sha256_file, sha256_json
-from .recipe import deep_merge, phase_train_config
+from .recipe import classifier_train_config, deep_merge, phase_train_config
 
 #: bump when the training code changes what a phase computes from the same inputs
 PHASE_CODE_VERSION = 1
@@ -91,12 +95,12 @@ def _frustum_sets(r: dict[str, Any], names: list[str], data_root: Path, cache: P
     for n in names:
         spec = r["frustums"][n]
         ds_name = spec["dataset"]
-        src = _on_rank0_first(env, lambda: ensure_dataset(data_root, ds_name, r["datasets"][ds_name], say=say))
+        src = _on_rank0_first(env, partial(ensure_dataset, data_root, ds_name, r["datasets"][ds_name], say=say))
         tag = spec.get("tag", "train")
         extract = deep_merge(cfg.data, spec.get("extract", {}))
         keys.append(frustum_key(src, frustum_config(extract, num_points, tag), spec.get("max_frames")))
-        sets.append(_on_rank0_first(env, lambda: get_frustums(src, extract, num_points, cache, tag,
-                                                              spec.get("max_frames"), say=say)))
+        sets.append(_on_rank0_first(env, partial(get_frustums, src, extract, num_points, cache, tag,
+                                                 spec.get("max_frames"), say=say)))
     return sets, keys
 
 
@@ -164,20 +168,23 @@ def run_classifier_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_
 def _classifier_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_root: Path,
                       say: Callable[[str], None]) -> dict[str, Any]:
     from .classifier_cli import build_all, load_candidates
-    from .train_classifier import ClassifierTrainConfig, train_classifier
+    from .train_classifier import train_classifier
 
     srcs = [ensure_dataset(data_root, n, r["datasets"][n], say=say) for n in ph["datasets"]]
     parents = _parents(out, [ph["network"]])
-    train_d = {**ph.get("train", {}), **r.get("classifier_overrides", {}), "seed": int(ph.get("seed", 0))}
-    cfg = ClassifierTrainConfig(**train_d)
+    cfg = classifier_train_config(r, ph)
+    train_d = asdict(cfg)
+    # the workers split each data set's shards into that many candidate files: part of the key,
+    # so that a cache never mixes two splits
     cand_key = sha256_json({"network": parents[0]["sha256"], "data": [data_identity(s) for s in srcs],
-                            "proposals": ph.get("proposals", 20), "max_frames": ph.get("max_frames")})[:16]
+                            "proposals": ph.get("proposals", 20), "max_frames": ph.get("max_frames"),
+                            "workers": int(ph.get("workers", 2))})[:16]
     key = sha256_json({"phase": {k: v for k, v in ph.items() if k != "comment"}, "train": train_d,
                        "candidates": cand_key, "code": PHASE_CODE_VERSION})
     d = out / ph["name"]
     if _is_done(out, ph["name"], key):
         say(f"phase {ph['name']}: done (key matches); skipped")
-        return phase_result(out, ph["name"])
+        return phase_result(out, ph["name"]) or {}
     _prepare_phase_dir(d, key, say)
     t0 = time.time()
     paths = build_all(srcs, out / "cache" / f"candidates_{cand_key}", out / parents[0]["file"], ph.get("max_frames"),
@@ -199,7 +206,12 @@ def run_recipe(r: dict[str, Any], out: str | Path, data_root: str | Path, only: 
     parents must have finished). Returns the result records; raises :class:`Stopped` when
     the time budget ran out (run again to continue)."""
     out, data_root = Path(out), Path(data_root)
+    unknown = sorted(set(only or []) - {ph["name"] for ph in r["phases"]})
+    if unknown:
+        raise ValueError(f"no phase {unknown} in {r['file']} (phases: {[ph['name'] for ph in r['phases']]})")
     out.mkdir(parents=True, exist_ok=True)
+    if ddp.current().is_main:  # what this run directory was last run with (inheritance resolved)
+        (out / "recipe.json").write_text(json.dumps(r, indent=1))
     t_start = time.time()
     results = []
     for ph in r["phases"]:

@@ -9,7 +9,7 @@ colour jitter, and the class one-hot dropped (zeros) with probability ``onehot_d
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import torch

@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch
@@ -29,6 +30,8 @@ _CUT_LEFT, _CUT_RIGHT = GLOBAL_FEATURES.index("cut_left"), GLOBAL_FEATURES.index
 
 @dataclass
 class ClassifierTrainConfig:
+    """Training settings of the proposal classifier (a recipe's classifier phase ``train``)."""
+
     epochs: int = 12
     batch_size: int = 64
     lr: float = 1e-3

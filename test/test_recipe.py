@@ -1,0 +1,286 @@
+"""Training recipes: inheritance and checks, content-keyed caches, provenance, and a whole tiny
+recipe run end to end (every phase's weights with provenance, the same weights from the same
+seeds, a finished recipe not run again)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+
+from shape_detector.model.io import read_blob
+from shape_detector.training import recipe as rcp
+from shape_detector.training.data_cache import data_identity, frustum_config, frustum_key
+from shape_detector.training.provenance import sha256_file
+
+TINY = Path(__file__).resolve().parent / "data" / "tiny_recipe.json"
+WEIGHTS = Path(__file__).resolve().parents[1] / "shape_detector" / "weights"
+#: provenance keys every weights file written by a recipe carries
+PROVENANCE_KEYS = {"git_commit", "recipe", "recipe_sha256", "phase", "data", "parents", "metrics", "torch_version",
+                   "created_utc", "world_size", "reconstructed"}
+
+
+def _write(path: Path, d: dict) -> Path:
+    path.write_text(json.dumps(d))
+    return path
+
+
+def test_inheritance_merges_dicts_and_replaces_the_rest(tmp_path):
+    base = _write(tmp_path / "base.json", {
+        "datasets": {"train": {"seed": 1, "frames": 10}},
+        "frustums": {"gt": {"dataset": "train", "extract": {}}},
+        "defaults": {"epochs": 3, "lr": 0.1, "model": {"num_points": 64, "seg_widths": [8, 8]}},
+        "phases": [{"name": "a", "train_data": ["gt"]}],
+    })
+    child = _write(tmp_path / "child.json", {
+        "inherits": "base.json",
+        "defaults": {"lr": 0.01, "model": {"seg_widths": [4]}},
+        "phases": [{"name": "b", "train_data": ["gt"], "train": {"epochs": 5}}],
+    })
+    r = rcp.load_recipe(child)
+    assert r["defaults"]["epochs"] == 3 and r["defaults"]["lr"] == 0.01
+    assert r["defaults"]["model"] == {"num_points": 64, "seg_widths": [4]}  # lists replace
+    assert [p["name"] for p in r["phases"]] == ["b"]
+    cfg = rcp.phase_train_config(r, r["phases"][0])
+    assert cfg.epochs == 5 and cfg.lr == pytest.approx(0.01) and cfg.model_config().num_points == 64
+    assert r["file"] == "child.json" and len(r["sha256"]) == 64
+    # the hash is of the resolved content: a comment does not change it, a setting does
+    _write(child, {**json.loads(child.read_text()), "comment": "words"})
+    assert rcp.load_recipe(child)["sha256"] == r["sha256"]
+    _write(base, {**json.loads(base.read_text()), "defaults": {"epochs": 4}})
+    assert rcp.load_recipe(child)["sha256"] != r["sha256"]
+
+
+@pytest.mark.parametrize("phases, message", [
+    ([{"name": "a", "train_data": ["nope"]}], "unknown frustum set"),
+    ([{"name": "a", "init": "b", "train_data": ["gt"]}], "not an earlier phase"),
+    ([{"name": "a", "train_data": ["gt"]}, {"name": "a", "train_data": ["gt"]}], "unique"),
+    ([{"name": "a", "train_data": ["gt"], "epochs": 3}], "unknown keys"),
+    ([{"name": "a", "train_data": ["gt"], "train": {"epoch": 3}}], "unknown training config keys"),
+    ([{"name": "a", "train_data": ["gt"], "keep": "first"}], "keep"),
+    ([{"name": "a", "train_data": []}], "no train_data"),
+    ([{"name": "c", "kind": "classifier", "network": "x", "datasets": ["train"]}], "not an earlier phase"),
+    ([{"name": "a", "train_data": ["gt"]},
+      {"name": "c", "kind": "classifier", "network": "a", "datasets": ["train"], "train": {"epoch": 2}}],
+     "unknown classifier training keys"),
+    ([{"name": "a", "train_data": ["gt"]}, {"name": "c", "kind": "classifier", "network": "a"}], "no datasets"),
+    ([{"name": "a", "kind": "other", "train_data": ["gt"]}], "kind"),
+])
+def test_bad_recipes_are_refused_with_one_clear_error(tmp_path, phases, message):
+    p = _write(tmp_path / "r.json", {"datasets": {"train": {"seed": 1, "frames": 2}},
+                                     "frustums": {"gt": {"dataset": "train"}}, "phases": phases})
+    with pytest.raises(ValueError, match=message):
+        rcp.load_recipe(p)
+
+
+def test_inheritance_loops_and_missing_files_are_refused(tmp_path):
+    _write(tmp_path / "a.json", {"inherits": "b.json"})
+    _write(tmp_path / "b.json", {"inherits": "a.json"})
+    with pytest.raises(ValueError, match="loops"):
+        rcp.load_recipe(tmp_path / "a.json")
+    with pytest.raises(FileNotFoundError):
+        rcp.load_recipe(tmp_path / "none.json")
+    _write(tmp_path / "e.json", {"datasets": {"t": {"seed": 1, "frames": 2}}, "frustums": {"gt": {"dataset": "t"}},
+                                 "phases": [{"name": "a", "train_data": ["gt"]}], "exports": {"x.pt": "b"}})
+    with pytest.raises(ValueError, match="export x.pt"):
+        rcp.load_recipe(tmp_path / "e.json")
+    (tmp_path / "bad.json").write_text("{not json")
+    with pytest.raises(ValueError, match="not valid JSON"):
+        rcp.load_recipe(tmp_path / "bad.json")
+
+
+def test_shipped_recipe_resolves_by_name_and_exports_the_shipped_files():
+    r = rcp.load_recipe("shipped")
+    assert r["file"] == "shipped.json" and r == rcp.load_recipe(rcp.RECIPES_DIR / "shipped.json")
+    assert set(r["exports"]) == {"default.pt", "classifier.pt"}
+    names = [p["name"] for p in r["phases"]]
+    assert all(v in names for v in r["exports"].values())
+    # every phase's epochs are in the recipe; nothing is a wall-clock budget
+    assert "max_minutes" not in json.dumps(r)
+    for ph in r["phases"]:
+        if ph.get("kind") != "classifier":
+            assert rcp.phase_train_config(r, ph).epochs >= 1
+
+
+def test_frustum_cache_key_follows_content_not_paths(tmp_path):
+    """A generated data set is identified by its seed, frame count and generator version: a
+    copy elsewhere has the same key; another extraction setting has another."""
+    src = tmp_path / "a" / "train"
+    src.mkdir(parents=True)
+    index = {"format": "shape_detector.synth shards v1", "seed": 5, "num_frames": 3, "config": {"width": 320}}
+    _write(src / "index.json", index)
+    moved = tmp_path / "b" / "elsewhere"
+    shutil.copytree(src, moved)
+    cfg = frustum_config({}, 128, "train")
+    assert data_identity(src) == data_identity(moved) and "path" not in data_identity(src)
+    assert frustum_key(src, cfg, None) == frustum_key(moved, cfg, None)
+    assert frustum_key(src, frustum_config({"augment_copies": 3}, 128, "train"), None) != frustum_key(src, cfg, None)
+    assert frustum_key(src, frustum_config({}, 128, "val"), None) != frustum_key(src, cfg, None)
+    _write(moved / "index.json", {**index, "config": {"width": 640}})  # another generator config
+    assert frustum_key(src, cfg, None) != frustum_key(moved, cfg, None)
+    _write(moved / "index.json", {**index, "generator_version": 2})  # a generator that renders otherwise
+    assert frustum_key(src, cfg, None) != frustum_key(moved, cfg, None)
+
+
+@pytest.mark.parametrize("name", ["default.pt", "classifier.pt"])
+def test_shipped_weights_carry_provenance(name, capsys):
+    from shape_detector.training import weights_info as wi
+
+    parser = argparse.ArgumentParser()
+    wi.configure_parser(parser)
+    assert wi.main(parser.parse_args([str(WEIGHTS / name), "--json"])) == 0
+    info = json.loads(capsys.readouterr().out)
+    prov = info["provenance"]
+    assert PROVENANCE_KEYS <= set(prov)
+    assert len(prov["git_commit"].split("+")[0]) == 40
+    assert prov["parents"] and all(len(p["sha256"]) == 64 for p in prov["parents"])
+    # the shipped files name the shipped recipe, its phase and their parents' phases
+    shipped = rcp.load_recipe("shipped")
+    assert prov["recipe_sha256"] == shipped["sha256"] and shipped["exports"][name] == prov["phase"]
+    names = [p["name"] for p in shipped["phases"]]
+    assert all(p["phase"] in names for p in prov["parents"])
+    assert prov["reconstructed"] is True and prov["notes"]  # written after the fact, and says so
+    assert info["sha256"] == sha256_file(WEIGHTS / name)
+    assert wi.main(parser.parse_args([str(WEIGHTS / name)])) == 0
+    assert "provenance reconstructed" in capsys.readouterr().out
+
+
+def test_weights_info_refuses_what_is_not_a_weights_file(tmp_path, capsys):
+    from shape_detector.training import weights_info as wi
+
+    bad = tmp_path / "x.pt"
+    bad.write_bytes(b"not a weights file")
+    parser = argparse.ArgumentParser()
+    wi.configure_parser(parser)
+    assert wi.main(parser.parse_args([str(bad)])) == 2
+    assert "weights-info" in capsys.readouterr().err
+
+
+def _state(path: Path) -> dict[str, torch.Tensor]:
+    return read_blob(path)["state_dict"]
+
+
+def _run_cli(args: list[str]) -> int:
+    from shape_detector.training import cli
+
+    parser = argparse.ArgumentParser()
+    cli.configure_parser(parser)
+    return cli.main(parser.parse_args(args))
+
+
+@pytest.mark.slow
+def test_tiny_recipe_end_to_end_is_reproducible_and_resumable(tmp_path, monkeypatch):
+    """The tiny recipe (a fresh network, a phase grown from it with the rest frozen, the
+    proposal classifier on the grown network's candidates) on freshly generated data: every
+    phase writes weights with provenance; a second run from the same seeds (data generated
+    again elsewhere) gives the same weights; running a finished recipe again trains nothing."""
+    from shape_detector.training.runner import run_recipe
+
+    monkeypatch.setenv("SHAPE_DETECTOR_CACHE", str(tmp_path / "graph_cache"))
+    r = rcp.load_recipe(TINY)
+    out1, out2, export = tmp_path / "run1", tmp_path / "run2", tmp_path / "export"
+    export.mkdir()
+    assert _run_cli(["--recipe", str(TINY), "--data-root", str(tmp_path / "data1"), "--out", str(out1),
+                     "--device", "cpu", "--export", str(export)]) == 0
+    phases = [p["name"] for p in r["phases"]]
+    files = {}
+    for ph in r["phases"]:
+        res = json.loads((out1 / ph["name"] / "result.json").read_text())
+        files[ph["name"]] = res["file"]
+        blob = read_blob(out1 / ph["name"] / res["file"])
+        prov = blob["provenance"]
+        assert PROVENANCE_KEYS <= set(prov), ph["name"]
+        assert prov["phase"] == ph["name"] and prov["recipe"] == TINY.name
+        assert prov["recipe_sha256"] == r["sha256"] and prov["reconstructed"] is False
+        assert prov["git_commit"] and prov["world_size"] == 1
+        assert prov["data"] and all({"seed", "frames", "generator_version"} <= set(d) for d in prov["data"])
+        assert {d["seed"] for d in prov["data"]} <= {s["seed"] for s in r["datasets"].values()}
+        assert prov["metrics"], ph["name"]
+        parent = ph.get("init") or ph.get("network")
+        if parent is None:
+            assert prov["parents"] == []
+        else:
+            (p,) = prov["parents"]
+            assert p["phase"] == parent and p["sha256"] == sha256_file(out1 / parent / files[parent])
+    for fname, ph in r["exports"].items():
+        assert sha256_file(export / fname) == sha256_file(out1 / ph / files[ph])
+
+    # a finished recipe: every phase skipped, nothing rewritten
+    before = {n: sha256_file(out1 / n / files[n]) for n in phases}
+    said: list[str] = []
+    run_recipe(r, out1, tmp_path / "data1", say=said.append)
+    assert sum("skipped" in s for s in said) == len(phases)
+    assert not any("training" in s or "building" in s or "generating" in s for s in said), said
+    assert {n: sha256_file(out1 / n / files[n]) for n in phases} == before
+
+    # the same seeds again, from data generated again: the same weights (one thread, CPU)
+    run_recipe(r, out2, tmp_path / "data2", say=lambda s: None)
+    for n in phases:
+        a, b = _state(out1 / n / files[n]), _state(out2 / n / files[n])
+        assert set(a) == set(b)
+        for k in a:
+            torch.testing.assert_close(b[k].float(), a[k].float(), atol=1e-6, rtol=1e-5, msg=f"{n}: {k}")
+
+    # a changed phase runs again with the phases after it, not those before
+    changed = json.loads(TINY.read_text())
+    changed["inherits"] = str(TINY.parent / changed["inherits"])
+    changed["phases"][1]["train"]["lr"] = 0.001
+    r2 = rcp.load_recipe(_write(tmp_path / "changed.json", changed))
+    said = []
+    run_recipe(r2, out1, tmp_path / "data1", say=said.append)
+    skipped = [n for n in phases if any(s.startswith(f"phase {n}: done") for s in said)]
+    assert skipped == [phases[0]], said
+
+
+def test_cli_refuses_mixed_options_and_unknown_phases(tmp_path, capsys):
+    assert _run_cli(["--recipe", str(TINY), "--epochs", "3", "--out", str(tmp_path / "o")]) == 2
+    assert "--epochs" in capsys.readouterr().err
+    assert _run_cli(["--data", str(tmp_path), "--out", str(tmp_path / "o"), "--export", str(tmp_path)]) == 2
+    assert "--export" in capsys.readouterr().err
+    assert _run_cli(["--recipe", str(TINY), "--phase", "nope", "--out", str(tmp_path / "o")]) == 2
+    assert "no phase" in capsys.readouterr().err
+    assert _run_cli(["--recipe", "no_such_recipe"]) == 2
+    assert "shipped" in capsys.readouterr().err  # names the packaged recipes
+
+
+def test_a_spent_time_budget_stops_before_the_next_phase(tmp_path):
+    """``--max-minutes`` stops a recipe (exit status 3, resumable); it never changes a phase."""
+    from shape_detector.training.runner import Stopped, run_recipe
+
+    with pytest.raises(Stopped):
+        run_recipe(rcp.load_recipe(TINY), tmp_path / "o", tmp_path / "data", max_minutes=0.0, say=lambda s: None)
+    assert not (tmp_path / "data").exists()  # stopped before generating anything
+    assert _run_cli(["--recipe", str(TINY), "--out", str(tmp_path / "o"), "--data-root", str(tmp_path / "data"),
+                     "--max-minutes", "0", "--device", "cpu"]) == 3
+
+
+@pytest.mark.parametrize("name", ["shipped", "collapsed"])
+def test_every_phase_of_a_packaged_recipe_can_start_from_its_parent(name):
+    """Each network phase of a packaged recipe accepts its parent's network (branches it adds
+    start as no-ops, nothing else differs) and names parts its network has; the network it
+    exports is the shipped architecture."""
+    from shape_detector.model.network import FrustumShapeNet
+    from shape_detector.training.init_from import freeze, load_init
+
+    r = rcp.load_recipe(name)
+    nets = {}
+    for ph in r["phases"]:
+        if ph.get("kind") == "classifier":
+            assert ph["network"] in nets
+            continue
+        cfg = rcp.phase_train_config(r, ph)
+        net = FrustumShapeNet(cfg.model_config())
+        if ph.get("init"):
+            load_init(net, nets[ph["init"]], cfg.reinit)
+        if cfg.trainable:
+            assert freeze(net, cfg.trainable), ph["name"]
+        nets[ph["name"]] = net
+    # the exported network is the shipped architecture
+    from shape_detector.model.config import ModelConfig
+
+    final = rcp.phase_train_config(r, rcp.phase(r, r["exports"]["default.pt"])).model_config()
+    assert final.to_dict() == ModelConfig().to_dict()
