@@ -1,0 +1,235 @@
+"""Shortest paths on the floor grid for an agent of a given radius, then smoothed.
+
+World frame, metres; grid cells are int8 (-1 unknown, 0 free, 100 occupied), row = y,
+col = x. What unknown cells mean is a choice (``unknown``):
+
+* ``"blocked"`` (default, the safe choice): only seen free floor is walked on; unknown space
+  may hold furniture the map has not seen;
+* ``"interior"``: unknown cells enclosed by the known cells (inside their morphological
+  closing by a disc of ``INTERIOR_CLOSE`` m: floor hidden behind furniture, the strip under
+  the walking camera, gaps between depth samples) are walkable at ``UNKNOWN_COST`` times the
+  length, so paths prefer seen floor; unknown cells outside the known cells' extent (beyond
+  the walls, which the grid does not hold) stay blocked;
+* ``"free"``: every unknown cell is walkable (at ``UNKNOWN_COST``).
+
+Traversable cells keep the radius from every blocked cell. The search is Dijkstra on the
+8-connected cell graph (scipy's compiled graph search); the cell path is then shortened by
+line of sight over traversable cells.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from .scene_data import ArGrid, as_grid
+
+FREE_MAX = 50  # cells with values in [0, FREE_MAX) count as free (nav_msgs convention)
+UNKNOWN_POLICIES = ("blocked", "interior", "free")
+#: length multiplier of steps onto walkable unknown cells
+UNKNOWN_COST = 2.0
+#: radius (m) of the closing that decides which unknown cells are enclosed ("interior")
+INTERIOR_CLOSE = 1.0
+
+
+def closing(mask: np.ndarray, radius_cells: float) -> np.ndarray:
+    """Morphological closing of ``mask`` by a disc (two distance transforms; the grid's
+    outside counts as empty)."""
+    pad = int(np.ceil(radius_cells)) + 1
+    m = np.pad(mask, pad)
+    grown = ndimage.distance_transform_edt(~m) <= radius_cells
+    return (ndimage.distance_transform_edt(grown) > radius_cells)[pad:-pad, pad:-pad]
+
+
+def walkable(grid: ArGrid, unknown: str = "blocked") -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) bool walkable cells before inflation and (H, W) float step cost multipliers
+    (1 on seen floor, ``UNKNOWN_COST`` on walkable unknown cells); see the module doc."""
+    if unknown not in UNKNOWN_POLICIES:
+        raise ValueError(f"unknown={unknown!r}: expected one of {UNKNOWN_POLICIES}")
+    data = np.asarray(grid.data)
+    free = (data >= 0) & (data < FREE_MAX)
+    unk = data < 0
+    if unknown == "interior":
+        unk &= closing(data >= 0, INTERIOR_CLOSE / float(grid.resolution))
+    elif unknown == "blocked":
+        unk = np.zeros_like(free)
+    return free | unk, np.where(unk, UNKNOWN_COST, 1.0)
+
+
+def traversable(grid: ArGrid, agent_radius: float, unknown: str = "blocked") -> np.ndarray:
+    """(H, W) bool: walkable cells whose centre is farther than ``agent_radius`` (m) from every
+    blocked cell: from the cell's area, taken as its centre's distance minus half a cell,
+    since an obstacle may reach up to the edge of the cells it marks."""
+    free, _ = walkable(grid, unknown)
+    if not free.any() or free.all():
+        return free
+    dist = ndimage.distance_transform_edt(free) * float(grid.resolution)
+    return free & (dist > float(agent_radius) + 0.5 * float(grid.resolution))
+
+
+@dataclass
+class CellGraph:
+    """8-connected graph of traversable cells: ``mask`` (H,W), ``index`` (H,W) node of each
+    cell (-1: none), ``cells`` (n,2) row/col of each node, ``matrix`` edge lengths in cells."""
+
+    mask: np.ndarray
+    index: np.ndarray
+    cells: np.ndarray
+    matrix: csr_matrix
+
+
+def build_graph(mask: np.ndarray, cost: np.ndarray | None = None) -> CellGraph:
+    """The cell graph of a traversable mask; diagonal moves need both side cells traversable.
+    ``cost`` (H, W): step length multiplier per cell (an edge costs the mean of its two ends)."""
+    H, W = mask.shape
+    index = np.full((H, W), -1, np.int64)
+    cells = np.argwhere(mask)
+    index[cells[:, 0], cells[:, 1]] = np.arange(len(cells))
+    src, dst, w = [], [], []
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        a = mask[max(0, -dr) : H - max(0, dr), max(0, -dc) : W - max(0, dc)]
+        r0, c0 = max(0, -dr), max(0, -dc)
+        sh = (slice(r0 + dr, r0 + dr + a.shape[0]), slice(c0 + dc, c0 + dc + a.shape[1]))
+        both = a & mask[sh]
+        if dr and dc:  # no corner cutting
+            both &= mask[r0 + dr : r0 + dr + a.shape[0], c0 : c0 + a.shape[1]]
+            both &= mask[r0 : r0 + a.shape[0], c0 + dc : c0 + dc + a.shape[1]]
+        rr, cc = np.nonzero(both)
+        i = index[rr + r0, cc + c0]
+        j = index[rr + r0 + dr, cc + c0 + dc]
+        step = np.full(len(i), float(np.hypot(dr, dc)))
+        if cost is not None:
+            step *= 0.5 * (cost[rr + r0, cc + c0] + cost[rr + r0 + dr, cc + c0 + dc])
+        src += [i, j]
+        dst += [j, i]
+        w.append(np.concatenate([step, step]))
+    n = len(cells)
+    matrix = csr_matrix((np.concatenate(w), (np.concatenate(src), np.concatenate(dst))), shape=(n, n))
+    return CellGraph(mask, index, cells, matrix)
+
+
+def _cell_of(grid: ArGrid, xy: np.ndarray) -> np.ndarray:
+    return np.floor((np.asarray(xy, dtype=np.float64) - grid.origin) / grid.resolution).astype(np.int64)[::-1]
+
+
+def _center(grid: ArGrid, rc: np.ndarray) -> np.ndarray:
+    rc = np.asarray(rc)
+    return grid.origin + (rc[..., ::-1] + 0.5) * grid.resolution
+
+
+def _snap(g: CellGraph, rc: np.ndarray, max_cells: float) -> np.ndarray | None:
+    """The traversable cell nearest to ``rc`` within ``max_cells`` (row, col), or None."""
+    H, W = g.mask.shape
+    if 0 <= rc[0] < H and 0 <= rc[1] < W and g.mask[rc[0], rc[1]]:
+        return rc
+    if len(g.cells) == 0:
+        return None
+    d = np.hypot(*(g.cells - rc).T)
+    k = int(np.argmin(d))
+    return g.cells[k] if d[k] <= max_cells else None
+
+
+def visible(mask: np.ndarray, a: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """(J,) bool: do all cells on the segment from cell ``a`` (row, col) to each of ``targets``
+    (J,2) lie in ``mask``? Samples every quarter cell, on the segment and a quarter cell
+    diagonally off it, so a segment cannot slip between two diagonal blocked cells."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(targets, dtype=np.float64).reshape(-1, 2)
+    if len(b) == 0:
+        return np.zeros(0, dtype=bool)
+    n = (np.ceil(4.0 * np.max(np.abs(b - a), axis=1)).astype(np.int64) + 1).clip(min=2)
+    seg = np.repeat(np.arange(len(b)), n)
+    start = np.cumsum(n) - n
+    t = (np.arange(int(n.sum())) - start[seg]) / (n[seg] - 1)
+    p = a[None] + t[:, None] * (b[seg] - a[None])
+    H, W = mask.shape
+    ok = np.ones(len(p), dtype=bool)
+    for dr, dc in ((0.0, 0.0), (0.25, 0.25), (0.25, -0.25), (-0.25, 0.25), (-0.25, -0.25)):
+        rr = np.floor(p[:, 0] + dr + 0.5).astype(np.int64)
+        cc = np.floor(p[:, 1] + dc + 0.5).astype(np.int64)
+        inside = (rr >= 0) & (cc >= 0) & (rr < H) & (cc < W)
+        ok &= inside & mask[rr.clip(0, H - 1), cc.clip(0, W - 1)]
+    blocked = np.add.reduceat((~ok).astype(np.int64), start)
+    return blocked == 0
+
+
+def smooth(mask: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Greedy line-of-sight shortening of a cell path (k,2): from each kept cell jump to the
+    farthest later turning cell (or the end) in sight. Straight runs between turns add no
+    shortcut, so only turning cells are candidates."""
+    if len(cells) <= 2:
+        return cells
+    step = np.diff(cells, axis=0)
+    turns = np.nonzero(np.any(step[1:] != step[:-1], axis=1))[0] + 1
+    key = np.concatenate([[0], turns, [len(cells) - 1]])
+    out = [0]
+    i = 0
+    while i < len(key) - 1:
+        vis = visible(mask, cells[key[i]], cells[key[i + 1 :]])
+        j = i + 1 + int(np.nonzero(vis)[0].max()) if vis.any() else i + 1
+        out.append(j)
+        i = j
+    return cells[key[out]]
+
+
+def plan_on_graph(grid: ArGrid, g: CellGraph, start_xy: np.ndarray, goal_xy: np.ndarray,
+                  snap_distance: float) -> list[tuple[float, float]] | None:
+    """Shortest smoothed path on a prebuilt graph; start/goal snap to the nearest traversable
+    cell within ``snap_distance`` (m). Returns world (x, y) waypoints or None."""
+    s_xy = np.asarray(start_xy, dtype=np.float64).reshape(2)
+    g_xy = np.asarray(goal_xy, dtype=np.float64).reshape(2)
+    if not (np.all(np.isfinite(s_xy)) and np.all(np.isfinite(g_xy))):
+        raise ValueError("start and goal must be finite (x, y) in metres")
+    max_cells = snap_distance / grid.resolution
+    s = _snap(g, _cell_of(grid, s_xy), max_cells)
+    t = _snap(g, _cell_of(grid, g_xy), max_cells)
+    if s is None or t is None:
+        return None
+    si, ti = int(g.index[s[0], s[1]]), int(g.index[t[0], t[1]])
+    if si == ti:
+        path_idx = [si]
+    else:
+        # the matrix holds both directions of every edge
+        dist, pred = dijkstra(g.matrix, directed=True, indices=si, return_predecessors=True)
+        if not np.isfinite(dist[ti]):
+            return None
+        path_idx = [ti]
+        while path_idx[-1] != si:
+            path_idx.append(int(pred[path_idx[-1]]))
+        path_idx.reverse()
+    cells = smooth(g.mask, g.cells[path_idx])
+    pts = _center(grid, cells)
+    # keep the exact start / goal when they lie in their (traversable) cells
+    if np.array_equal(s, _cell_of(grid, s_xy)):
+        pts[0] = s_xy
+    if np.array_equal(t, _cell_of(grid, g_xy)):
+        pts[-1] = g_xy
+    if len(pts) == 1:
+        pts = np.vstack([pts, pts[-1:]])
+    return [(float(x), float(y)) for x, y in pts]
+
+
+def nav_graph(grid: ArGrid, agent_radius: float, unknown: str = "blocked") -> CellGraph:
+    """The navigation graph of a grid for a disc of ``agent_radius`` m."""
+    _, cost = walkable(grid, unknown)
+    return build_graph(traversable(grid, agent_radius, unknown), cost)
+
+
+def plan(scene_or_grid: Any, start_xy: np.ndarray, goal_xy: np.ndarray, agent_radius: float = 0.2,
+         unknown: str = "blocked", snap_distance: float | None = None) -> list[tuple[float, float]] | None:
+    """Shortest path (world (x, y) waypoints, metres) for a disc of ``agent_radius`` from
+    ``start_xy`` to ``goal_xy`` on the grid of a scene (or a ``NavGrid``-like grid); None when
+    no path exists; ``unknown``: what unknown cells mean (module doc). ``snap_distance`` (default: the radius) lets a start or goal inside the
+    inflated margin move to the nearest traversable cell. Builds the graph on every call:
+    use ``SceneQueries.plan`` to reuse it."""
+    grid = as_grid(scene_or_grid)
+    if not np.isfinite(agent_radius) or agent_radius < 0:
+        raise ValueError(f"agent_radius={agent_radius} must be finite and >= 0 (metres)")
+    g = nav_graph(grid, agent_radius, unknown)
+    snap = agent_radius if snap_distance is None else float(snap_distance)
+    return plan_on_graph(grid, g, start_xy, goal_xy, snap)

@@ -1,0 +1,97 @@
+"""Paths on hand-made grids: through a gap, none through a closed wall, clearance, unknown cells."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from ar_scenes import wall_grid
+
+from shape_detector.ar import ArGrid, ArScene, plan
+from shape_detector.ar.planning import traversable, visible
+
+
+def _clearance(grid: ArGrid, path: list[tuple[float, float]], step: float = 0.01) -> float:
+    """Smallest distance (m) from the densely sampled path to an occupied cell's centre."""
+    occ = (np.argwhere(grid.data == 100)[:, ::-1] + 0.5) * grid.resolution + grid.origin
+    p = np.array(path)
+    pts = np.concatenate([np.linspace(a, b, max(2, int(np.linalg.norm(b - a) / step))) for a, b in zip(p[:-1], p[1:])])
+    return float(np.min(np.linalg.norm(pts[:, None] - occ[None], axis=2)))
+
+
+def test_path_through_the_gap() -> None:
+    g = wall_grid(gap=True)
+    path = plan(g, (1.0, 0.5), (3.0, 0.5), agent_radius=0.2)
+    assert path is not None
+    assert path[0] == (1.0, 0.5) and path[-1] == (3.0, 0.5)
+    p = np.array(path)
+    length = float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
+    # straight through the opening (y in [1.5, 2.5], margin 0.2 m): about 2 x hypot(1, 1.2)
+    assert 2 * np.hypot(1.0, 1.2) - 0.05 < length < 2 * np.hypot(1.0, 1.2) + 0.25
+    assert len(path) <= 5  # smoothed: a few corners, not a staircase of cells
+    assert _clearance(g, path) >= 0.2 - 1e-6
+
+
+def test_no_path_through_a_closed_wall() -> None:
+    g = wall_grid(gap=False)
+    assert plan(g, (1.0, 0.5), (3.0, 0.5), agent_radius=0.2) is None
+    assert plan(g, (1.0, 0.5), (1.0, 3.5), agent_radius=0.2) is not None  # same side
+
+
+def test_gap_too_narrow_for_a_wide_agent() -> None:
+    g = wall_grid(gap=True)  # 1 m opening
+    assert plan(g, (1.0, 0.5), (3.0, 0.5), agent_radius=0.45) is not None
+    assert plan(g, (1.0, 0.5), (3.0, 0.5), agent_radius=0.55) is None
+
+
+def test_unknown_cells_block_by_default() -> None:
+    g = wall_grid(gap=False)
+    g.data[:, 40:42] = -1  # the wall is unknown space instead
+    assert plan(g, (1.0, 0.5), (3.0, 0.5)) is None
+    assert plan(g, (1.0, 0.5), (3.0, 0.5), unknown="free") is not None
+    # a 10 cm unseen band between seen floor is enclosed (a gap between depth samples)
+    assert plan(g, (1.0, 0.5), (3.0, 0.5), unknown="interior") is not None
+    with pytest.raises(ValueError):
+        plan(g, (1.0, 0.5), (3.0, 0.5), unknown="maybe")
+
+
+def test_interior_unknown_only_inside_the_seen_floor() -> None:
+    g = wall_grid(gap=True)
+    g.data[:, 60:] = -1  # the far side beyond x = 3 m was never seen
+    assert plan(g, (1.0, 0.5), (3.5, 0.5), unknown="interior") is None  # outside the seen extent
+    assert plan(g, (1.0, 0.5), (3.5, 0.5), unknown="free") is not None
+    # an unseen patch inside the seen floor is walkable ...
+    g = wall_grid(gap=False)
+    g.data[10:70, 5:35] = -1
+    assert plan(g, (1.0, 2.0), (1.2, 2.0), unknown="blocked") is None
+    assert plan(g, (1.0, 2.0), (1.2, 2.0), unknown="interior") is not None
+    # ... at twice the cost: a detour over seen floor up to twice as long wins
+    g = wall_grid(gap=False)
+    g.data[30:50, 10:30] = -1  # y 1.5..2.5, x 0.5..1.5
+    path = np.array(plan(g, (0.2, 2.0), (1.8, 2.0), unknown="interior"))
+    assert np.all((path[:, 1] <= 1.5 + 1e-9) | (path[:, 1] >= 2.5 - 1e-9) | (path[:, 0] <= 0.5) | (path[:, 0] >= 1.5))
+
+
+def test_start_in_the_margin_snaps() -> None:
+    g = wall_grid(gap=True)
+    path = plan(g, (1.9, 0.5), (1.0, 0.5), agent_radius=0.2)  # 5 cm from the wall
+    assert path is not None and 1.7 <= path[0][0] <= 1.8
+    assert plan(g, (1.9, 0.5), (1.0, 0.5), agent_radius=0.2, snap_distance=0.0) is None
+    assert plan(g, (10.0, 10.0), (1.0, 0.5)) is None  # off the grid
+
+
+def test_plan_accepts_scene_and_rejects_bad_input() -> None:
+    sc = ArScene([], wall_grid(gap=True))
+    assert plan(sc, (1.0, 0.5), (1.0, 3.0)) is not None
+    with pytest.raises(ValueError):
+        plan(sc, (np.nan, 0.5), (1.0, 3.0))
+    with pytest.raises(ValueError):
+        plan(sc, (1.0, 0.5), (1.0, 3.0), agent_radius=-1)
+    with pytest.raises(ValueError):
+        plan(ArScene([]), (1.0, 0.5), (1.0, 3.0))
+
+
+def test_traversable_and_visibility() -> None:
+    g = wall_grid(gap=False)
+    m = traversable(g, 0.2)
+    assert m[10, 10] and not m[10, 37] and not m[10, 40] and m[10, 46]  # 0.2 m margin at 5 cm cells
+    assert visible(m, np.array([10, 10]), np.array([[10, 30], [10, 50]])).tolist() == [True, False]

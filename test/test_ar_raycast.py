@@ -1,0 +1,64 @@
+"""Ray casts against hand-made scenes: distances, object ids, normals, floor, batches."""
+
+from __future__ import annotations
+
+import numpy as np
+from ar_scenes import box_object, table
+
+from shape_detector.ar import FLOOR_ID, ArScene, raycast, raycast_many
+
+
+def _scene() -> ArScene:
+    return ArScene([table(2, (0.0, 0.0)), box_object(5, "dresser", (3.0, 0.0, 0.6), (0.5, 1.0, 1.2), yaw=np.pi / 4)])
+
+
+def test_down_onto_table_top() -> None:
+    hit = raycast(_scene(), [0.1, 0.1, 2.0], [0.0, 0.0, -3.0])
+    assert hit is not None and hit.object_id == 2 and hit.primitive_index == 0
+    assert abs(hit.distance - 1.25) < 1e-5
+    np.testing.assert_allclose(hit.normal, [0, 0, 1], atol=1e-6)
+    np.testing.assert_allclose(hit.point, [0.1, 0.1, 0.75], atol=1e-5)
+
+
+def test_under_the_table_hits_the_floor() -> None:
+    hit = raycast(_scene(), [0.0, 0.0, 0.5], [0.0, 0.0, -1.0])
+    assert hit is not None and hit.object_id == FLOOR_ID
+    assert abs(hit.distance - 0.5) < 1e-9
+    assert raycast(_scene(), [0.0, 0.0, 0.5], [0.0, 0.0, -1.0], max_distance=0.4) is None
+
+
+def test_side_of_rotated_box_normal() -> None:
+    # the dresser turned 45 degrees: aim at the middle of its back face (normal = -its x axis),
+    # 0.25 m (half its depth) behind its centre, from 2 m out along that normal
+    n = -np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0])
+    face_center = np.array([3.0, 0.0, 0.6]) + 0.25 * n
+    origin = face_center + 2.0 * n
+    hit = raycast(_scene(), origin, face_center - origin)
+    assert hit is not None and hit.object_id == 5 and hit.primitive_index == -1
+    assert abs(hit.distance - 2.0) < 1e-5
+    np.testing.assert_allclose(hit.normal, n, atol=1e-6)
+
+
+def test_misses_and_origin_inside() -> None:
+    sc = _scene()
+    assert raycast(sc, [0.0, 0.0, 2.0], [0.0, 0.0, 1.0]) is None  # up, nothing above
+    assert raycast(sc, [0.0, 0.0, 2.0], [0.0, 0.0, 1.0], max_distance=10) is None
+    # from inside the table top looking up: the top is ignored
+    assert raycast(sc, [0.0, 0.0, 0.72], [0.0, 0.0, 1.0]) is None
+    assert raycast(sc, [0.0, 0.0, 2.0], [0.0, 0.0, 0.0]) is None  # zero direction
+    assert raycast(ArScene([]), [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]) is None
+
+
+def test_batch_matches_single() -> None:
+    sc = _scene()
+    rng = np.random.default_rng(1)
+    o = rng.uniform([-1, -1, 1.0], [4, 2, 2.0], (200, 3))
+    d = rng.normal(size=(200, 3))
+    hits = raycast_many(sc, o, d)
+    for k in range(0, 200, 7):
+        h = raycast(sc, o[k], d[k])
+        if h is None:
+            assert not hits.hit[k]
+        else:
+            assert hits.object_id[k] == h.object_id and abs(hits.distance[k] - h.distance) < 1e-9
+    assert hits.hit.sum() > 50

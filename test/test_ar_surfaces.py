@@ -1,0 +1,52 @@
+"""Usable top faces and affordances of hand-made furniture."""
+
+from __future__ import annotations
+
+import numpy as np
+from ar_scenes import bed, box_object, chair, table
+
+from shape_detector.ar import ArScene, surfaces
+
+
+def _area(poly: np.ndarray) -> float:
+    x, y = poly[:, 0], poly[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def test_table_top_only() -> None:
+    s = surfaces(ArScene([table(4, (1.0, 2.0), yaw=0.3)]))
+    assert len(s) == 1  # the legs' tops are covered by the top slab
+    top = s[0]
+    assert (top.object_id, top.class_name, top.affordance, top.primitive_index) == (4, "table", "place", 0)
+    assert abs(top.height - 0.75) < 1e-9
+    assert top.polygon.shape == (4, 2)
+    assert abs(_area(top.polygon) - 0.6) < 1e-9  # counter-clockwise, 1.0 m x 0.6 m
+    np.testing.assert_allclose(top.polygon.mean(axis=0), [1.0, 2.0], atol=1e-9)
+
+
+def test_chair_seat_not_back() -> None:
+    s = surfaces(ArScene([chair(2, (0.0, 0.0))]))
+    assert [(x.affordance, round(x.height, 3)) for x in s] == [("sit", 0.45)]  # the 5 cm back top is too thin
+
+
+def test_bed_mattress_lie_and_sit() -> None:
+    s = surfaces(ArScene([bed(9, (0.0, 0.0))]))
+    assert len(s) == 1  # the frame is under the mattress
+    assert s[0].affordance == "lie" and s[0].affordances == ("lie", "sit")
+    assert abs(s[0].height - 0.55) < 1e-9 and abs(s[0].area - 1.95 * 1.55) < 1e-9
+
+
+def test_classes_without_affordance_and_boxes_without_primitives() -> None:
+    sc = ArScene([box_object(1, "toilet", (0, 0, 0.4), (0.7, 0.45, 0.8)),
+                  box_object(2, "dresser", (2, 0, 0.6), (0.5, 1.0, 1.2), yaw=0.5),
+                  box_object(3, "bookshelf", (4, 0, 1.5), (0.4, 1.0, 3.0))])  # 3 m: too tall to place on
+    s = surfaces(sc)
+    assert [(x.object_id, x.affordance, x.primitive_index) for x in s] == [(2, "place", -1)]
+    assert abs(s[0].height - 1.2) < 1e-9
+
+
+def test_tilted_box_has_no_top() -> None:
+    o = box_object(1, "table", (0, 0, 0.4), (1.0, 1.0, 0.8))
+    a = np.radians(30)
+    o.rotation = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    assert surfaces(ArScene([o])) == []
