@@ -1,0 +1,66 @@
+"""The scene map's JSON form (world frame, z up, metres; stamps int ns).
+
+::
+
+    {"frame_id": "odom", "stamp_ns": int,
+     "objects": [{"id", "class", "score", "center": [x, y, z], "size": [l, w, h],
+                  "rotation": [[3x3]] (columns = box axes, world), "yaw", "observations",
+                  "first_seen_ns", "last_seen_ns",
+                  "primitives": [{"center": [3], "size": [3], "rotation": [[3x3]]}]}],
+     "grid": {"resolution", "origin": [x, y], "width", "height", "floor_z",
+              "encoding": "base64-int8", "data": base64 of the (height, width) int8 cells, row-major}}
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .grid import NavGrid
+from .types import SceneObject
+
+
+def grid_to_dict(grid: NavGrid) -> dict[str, Any]:
+    """The ``"grid"`` entry."""
+    data = np.ascontiguousarray(grid.data, dtype=np.int8)
+    return {"resolution": float(grid.resolution), "origin": [float(v) for v in grid.origin],
+            "width": grid.width, "height": grid.height, "floor_z": float(grid.floor_z),
+            "encoding": "base64-int8", "data": base64.b64encode(data.tobytes()).decode("ascii")}
+
+
+def grid_from_dict(d: dict[str, Any]) -> NavGrid:
+    """A :class:`NavGrid` from its ``"grid"`` entry; ValueError when the cells do not fit."""
+    h, w = int(d["height"]), int(d["width"])
+    enc = d.get("encoding", "base64-int8")
+    if "data" not in d:  # header only: nothing known
+        cells = np.full((h, w), -1, np.int8)
+    elif enc == "base64-int8":
+        cells = np.frombuffer(base64.b64decode(d["data"]), dtype=np.int8)
+        if cells.size != h * w:
+            raise ValueError(f"grid data holds {cells.size} cells, expected {h} x {w}")
+        cells = cells.reshape(h, w).copy()
+    else:
+        raise ValueError(f"unknown grid encoding {enc!r}")
+    return NavGrid(float(d["resolution"]), np.asarray(d["origin"], float), cells, float(d.get("floor_z", 0.0)))
+
+
+def scene_to_dict(frame_id: str, stamp_ns: int, objects: list[SceneObject], grid: NavGrid) -> dict[str, Any]:
+    """The whole JSON document as a dict."""
+    return {"frame_id": frame_id, "stamp_ns": int(stamp_ns), "objects": [o.to_dict() for o in objects],
+            "grid": grid_to_dict(grid)}
+
+
+def load_dict(path_or_dict: str | Path | dict[str, Any]) -> dict[str, Any]:
+    """A JSON document given as a dict or a file path; ValueError when it is not a scene."""
+    if isinstance(path_or_dict, dict):
+        d = path_or_dict
+    else:
+        with open(path_or_dict, encoding="utf-8") as f:
+            d = json.load(f)
+    if not isinstance(d, dict) or "objects" not in d or "frame_id" not in d:
+        raise ValueError("not a scene map JSON document (needs 'frame_id' and 'objects')")
+    return d

@@ -1,0 +1,336 @@
+"""SceneMap: tracked furniture in a fixed world frame and a navigation grid (pure numpy).
+
+World frame: z up, metres; stamps int ns. Each :meth:`SceneMap.update` takes the detector's
+objects (camera optical frame: x right, y down, z forward), the pose ``T_world_camera``
+(4x4, camera optical frame -> world) and the frame's depth (metres) and intrinsics:
+
+1. detections become world-frame observations (:mod:`.observe`), weighted by score x the
+   share of the box inside the image;
+2. they are assigned to tracks in 3D (:mod:`.association`: centre distance in units of the
+   footprint, height, and a class term that a one-frame class flip cannot outweigh);
+   matched tracks fuse them (:mod:`.tracks`), unmatched ones start tentative tracks unless
+   they overlap a track already matched this frame (a second box on one object);
+3. tracks not matched whose space the depth shows empty lose support (:mod:`.visibility`)
+   and are removed after ``delete_misses`` such frames; out-of-view or hidden tracks stay;
+   tentative tracks not seen again within ``tentative_max_age`` frames are dropped;
+4. overlapping tracks merge (the older id stays);
+5. the floor seen in the depth is added to the grid (:mod:`.grid`).
+
+A track is published (:meth:`objects`) once seen in ``confirm_observations`` frames.
+Without a pose (static camera) the world is the camera frame turned so that z is up
+(``up_camera``), origin at the camera; the map says so once (warning and log).
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..classes import CLASSES
+from ..types import Object3D
+from .association import associate, class_similarity, cost_matrix, duplicate_pairs, overlap
+from .grid import FloorMemory, NavGrid, build_grid, depth_points_world, estimate_floor_z, floor_cells_seen
+from .json_io import grid_from_dict, load_dict, scene_to_dict
+from .observe import to_observation
+from .tracks import N_CLASSES, Observation, Track
+from .types import SceneObject, ScenePrimitive
+from .visibility import EmptyParams, seen_empty
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """Settings of :class:`SceneMap` (metres, frames and counts of updates)."""
+
+    #: name of the fixed world frame (z up)
+    world_frame: str = "odom"
+    #: navigation grid cell size
+    grid_resolution: float = 0.05
+    #: grid inflation for the agent's radius (:meth:`SceneMap.grid` with ``inflate=True``)
+    inflation_radius: float = 0.2
+    #: a track is published once detected in this many frames
+    confirm_observations: int = 3
+    #: ... and once its accumulated fusion weight (about the number of sure, fully visible
+    #: detections) reaches this: the box has settled before it is published
+    confirm_weight: float = 0.1
+    #: a track is removed after this many frames in which its space is seen empty
+    delete_misses: int = 3
+    #: an unpublished track not detected for this many frames is dropped
+    tentative_max_age: int = 8
+    #: association gate (cost units: centre distance / mean footprint radius + terms)
+    gate: float = 1.0
+    #: association cost of a class the track has no evidence for
+    class_weight: float = 0.4
+    #: cap of a track's accumulated fusion weight (higher: steadier box, slower to adapt)
+    max_weight: float = 30.0
+    #: detections scored lower are ignored
+    min_score: float = 0.0
+    #: parts below this height above the floor block the agent (see :mod:`.grid`)
+    agent_height: float = 1.8
+    #: parts whose top is lower than this above the floor do not block (rugs)
+    min_obstacle_height: float = 0.05
+    #: world z of the floor; None estimates it from the depth (lowest dense height)
+    floor_z: float | None = None
+    #: depth points within this height of the floor mark free cells
+    floor_band: float = 0.05
+    #: every n-th depth row and column is used for the floor
+    depth_stride: int = 4
+    #: depth points beyond this range are not used for the floor
+    max_range: float = 6.0
+    #: two tracks with a 3D IoU above this merge
+    merge_iou: float = 0.4
+    #: two tracks of agreeing class whose intersection over the smaller box is above this merge
+    merge_ios: float = 0.6
+
+
+def level_rotation(up_camera: np.ndarray | None) -> np.ndarray:
+    """(3,3) rotation camera optical frame -> a world whose z is ``up_camera`` (camera
+    frame; None: a level camera, (0, -1, 0)) and whose x is the camera's x made horizontal."""
+    u = np.array([0.0, -1.0, 0.0]) if up_camera is None else np.asarray(up_camera, dtype=np.float64).reshape(3)
+    u = u / max(np.linalg.norm(u), 1e-9)
+    x = np.array([1.0, 0.0, 0.0]) - u * u[0]
+    if np.linalg.norm(x) < 1e-6:
+        x = np.array([0.0, 0.0, 1.0]) - u * u[2]
+    x = x / np.linalg.norm(x)
+    y = np.cross(u, x)
+    return np.stack([x, y, u])  # rows: world axes in camera coordinates
+
+
+class SceneMap:
+    """The scene memory (see the module docstring)."""
+
+    def __init__(self, config: SceneConfig | None = None) -> None:
+        self.config = config or SceneConfig()
+        self.frame_id: str = self.config.world_frame
+        self.stamp_ns: int = 0
+        self.tracks: list[Track] = []
+        self.floor = FloorMemory(self.config.grid_resolution)
+        self._next_id = 1
+        self._floor_estimates: list[float] = []
+        self._static_warned = False
+        self._grid: NavGrid | None = None
+        self._empty = EmptyParams()
+        self.frames = 0
+
+    # -- public --------------------------------------------------------------------
+    def update(self, objects: Sequence[Object3D], T_world_camera: np.ndarray | None, depth: np.ndarray | None,
+               K: np.ndarray | None, stamp_ns: int, up_camera: np.ndarray | None = None) -> None:
+        """Fold one frame into the map (see the module docstring). ``objects``: detector
+        output, camera optical frame; ``T_world_camera``: (4,4) or None (static camera);
+        ``depth``: (H,W) metres or None; ``K``: (3,3) intrinsics of ``depth``."""
+        T = self._pose(T_world_camera, up_camera)
+        if depth is not None and (K is None or np.ndim(depth) != 2):
+            log.warning("scene map: depth without a valid K or not 2D; depth not used this frame")
+            depth = None
+        self.stamp_ns = int(stamp_ns)
+        self.frames += 1
+        obs = self._observations(objects, T, depth, K)
+        matched = self._assign(obs)
+        if depth is not None:
+            self._negative_evidence(matched, T, np.asarray(depth, dtype=np.float32), np.asarray(K, np.float64))
+        self._age(matched)
+        self._merge()
+        if depth is not None:
+            self.integrate_floor(T, np.asarray(depth, dtype=np.float32), np.asarray(K, np.float64))
+        self._grid = None
+
+    def objects(self) -> list[SceneObject]:
+        """The confirmed tracks, sorted by id."""
+        return [self._published(t) for t in sorted(self.tracks, key=lambda t: t.id) if t.confirmed]
+
+    def grid(self, inflate: bool = False) -> NavGrid:
+        """The navigation grid (inflated by ``config.inflation_radius`` when ``inflate``)."""
+        if self._grid is None:
+            parts = []
+            for t in self.tracks:
+                if not t.confirmed:
+                    continue
+                prims = t.primitives()
+                parts += [(p.center, p.size, p.rotation) for p in prims] or [(t.center, t.size, t.rotation)]
+            c = self.config
+            self._grid = build_grid(self.floor, parts, self.floor_z, c.agent_height, c.min_obstacle_height)
+        return self._grid.inflated(self.config.inflation_radius) if inflate else self._grid
+
+    @property
+    def floor_z(self) -> float:
+        """World z of the floor (given, or the median of the per-frame estimates; 0 before any)."""
+        if self.config.floor_z is not None:
+            return float(self.config.floor_z)
+        return float(np.median(self._floor_estimates)) if self._floor_estimates else 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        """The map as a JSON-ready dict (schema in :mod:`.json_io`)."""
+        return scene_to_dict(self.frame_id, self.stamp_ns, self.objects(), self.grid())
+
+    def save_json(self, path: str | Path) -> None:
+        """Write :meth:`to_json` to ``path``."""
+        import json
+
+        Path(path).write_text(json.dumps(self.to_json()), encoding="utf-8")
+
+    @classmethod
+    def from_json(cls, path_or_dict: str | Path | dict[str, Any], config: SceneConfig | None = None) -> "SceneMap":
+        """A map holding the objects (as confirmed tracks) and the free floor of a saved one;
+        :meth:`update` keeps working on it."""
+        d = load_dict(path_or_dict)
+        from dataclasses import replace
+
+        m = cls(replace(config or SceneConfig(), world_frame=str(d["frame_id"])))
+        m.stamp_ns = int(d.get("stamp_ns", 0))
+        for o in d["objects"]:
+            m.tracks.append(_track_from_object(SceneObject.from_dict(o), m.config.max_weight))
+        m._next_id = max([t.id for t in m.tracks], default=0) + 1
+        if "grid" in d:
+            g = grid_from_dict(d["grid"])
+            m.floor = FloorMemory(g.resolution)
+            rows, cols = np.nonzero(g.data == 0)
+            m.floor.add(g.origin + (np.stack([cols, rows], axis=1) + 0.5) * g.resolution)
+            m._floor_estimates = [g.floor_z]
+        return m
+
+    # -- steps ---------------------------------------------------------------------
+    def _pose(self, T: np.ndarray | None, up_camera: np.ndarray | None) -> np.ndarray:
+        if T is not None:
+            T = np.asarray(T, dtype=np.float64)
+            if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+                raise ValueError(f"T_world_camera must be a finite 4x4 matrix, got shape {T.shape}")
+            return T
+        if not self._static_warned:
+            self._static_warned = True
+            msg = ("scene map: no camera pose; assuming a static camera (world = camera frame turned so "
+                   "that z is up, origin at the camera)")
+            log.warning(msg)
+            warnings.warn(msg, stacklevel=3)
+        out = np.eye(4)
+        out[:3, :3] = level_rotation(up_camera)
+        return out
+
+    def _observations(self, objects: Sequence[Object3D], T: np.ndarray, depth: np.ndarray | None,
+                      K: np.ndarray | None) -> list[Observation]:
+        size = None if depth is None else tuple(np.shape(depth))
+        out = []
+        for o in objects:
+            if o.class_name not in CLASSES or not (o.score >= self.config.min_score):
+                continue
+            ob = to_observation(o, T, self.stamp_ns, K, size)
+            if ob is None:
+                log.debug("scene map: skipped a malformed detection")
+                continue
+            out.append(ob)
+        return out
+
+    def _assign(self, obs: list[Observation]) -> set[int]:
+        """Match, fuse, start tracks; returns the ids of the tracks detected this frame."""
+        c = self.config
+        pairs, _, new = associate(cost_matrix(self.tracks, obs, c.class_weight), c.gate)
+        matched: set[int] = set()
+        for ti, di in pairs:
+            self.tracks[ti].fuse(obs[di], 1.0, c.max_weight)
+            matched.add(self.tracks[ti].id)
+        for di in sorted(new, key=lambda j: -obs[j].weight):
+            probe = Track.start(0, obs[di], 0.0)
+            best, best_ov = None, 0.0
+            reach = 0.5 * np.linalg.norm(probe.size)
+            for t in self.tracks:
+                if np.linalg.norm(t.center - probe.center) > reach + 0.5 * np.linalg.norm(t.size):
+                    continue  # too far apart to overlap
+                iou, ios = overlap(t, probe)
+                # one object: boxes overlapping a lot, or mostly nested with agreeing classes
+                # (a chair pushed under a table is nested in it but keeps its own track)
+                ov = max(iou / c.merge_iou, ios / c.merge_ios if class_similarity(t, probe) >= 0.2 else 0.0)
+                if ov > best_ov:
+                    best, best_ov = t, ov
+            if best is not None and best_ov >= 1.0:
+                if best.id not in matched:  # a late match: the cost was high but the boxes overlap
+                    best.fuse(obs[di], 1.0, c.max_weight)
+                    matched.add(best.id)
+                continue  # a second box on an object already detected this frame
+            t = Track.start(self._next_id, obs[di], 0.0)
+            self._next_id += 1
+            self.tracks.append(t)
+            matched.add(t.id)
+        for t in self.tracks:
+            if t.observations >= c.confirm_observations and t.weight_sum >= c.confirm_weight:
+                t.confirmed = True
+        return matched
+
+    def _negative_evidence(self, matched: set[int], T: np.ndarray, depth: np.ndarray, K: np.ndarray) -> None:
+        keep = []
+        for t in self.tracks:
+            if t.id not in matched:
+                prims = t.primitives()
+                parts = [(p.center, p.size, p.rotation) for p in prims] or [(t.center, t.size, t.rotation)]
+                empty = seen_empty(parts, T, depth, K, self._empty)
+                if empty is True:
+                    t.empty_streak += 1
+                elif empty is False:
+                    t.empty_streak = 0
+                if t.empty_streak >= self.config.delete_misses:
+                    log.debug("scene map: track %d seen empty, removed", t.id)
+                    continue
+            keep.append(t)
+        self.tracks = keep
+
+    def _age(self, matched: set[int]) -> None:
+        for t in self.tracks:
+            if t.id not in matched:
+                t.frames_since_seen += 1
+        self.tracks = [t for t in self.tracks
+                       if t.confirmed or t.frames_since_seen <= self.config.tentative_max_age]
+
+    def _merge(self) -> None:
+        c = self.config
+        while True:
+            pairs = duplicate_pairs(self.tracks, c.merge_iou, c.merge_ios)
+            if not pairs:
+                return
+            i, j = pairs[0]
+            a, b = self.tracks[i], self.tracks[j]
+            keep, gone = (a, b) if (a.confirmed, -a.id) >= (b.confirmed, -b.id) else (b, a)
+            keep.absorb(gone)
+            self.tracks.remove(gone)
+
+    def integrate_floor(self, T: np.ndarray, depth: np.ndarray, K: np.ndarray) -> None:
+        """Add the floor seen in ``depth`` (metres; ``K`` its intrinsics) from pose ``T`` to the grid."""
+        c = self.config
+        pts = depth_points_world(depth, K, T, c.depth_stride, c.max_range)
+        if c.floor_z is None:
+            fz = estimate_floor_z(pts[:, 2])
+            if fz is not None:
+                self._floor_estimates.append(fz)
+                self._floor_estimates = self._floor_estimates[-200:]
+        near = pts[np.abs(pts[:, 2] - self.floor_z) <= c.floor_band, :2]
+        self.floor.add(near)
+        self.floor.add(floor_cells_seen(depth, K, T, self.floor_z, c.grid_resolution, near, c.floor_band))
+
+    @staticmethod
+    def _published(t: Track) -> SceneObject:
+        R = t.rotation
+        prims = [ScenePrimitive(p.center, p.size, p.rotation) for p in t.primitives()]
+        return SceneObject(id=t.id, class_name=t.class_name, score=t.score, center=t.center.copy(),
+                           size=t.size.copy(), rotation=R, yaw=t.yaw, observations=t.observations,
+                           first_seen_ns=t.first_seen_ns, last_seen_ns=t.last_seen_ns, primitives=prims)
+
+
+def _track_from_object(o: SceneObject, max_weight: float) -> Track:
+    """A confirmed track standing for a published object (its class evidence one-hot)."""
+    ev = np.zeros(N_CLASSES)
+    ev[CLASSES.index(o.class_name) if o.class_name in CLASSES else 0] = 1.0
+    n = max(int(o.observations), 1)
+    w = min(float(n), max_weight)
+    t = Track(id=int(o.id), center=np.asarray(o.center, float), size=np.asarray(o.size, float), yaw=float(o.yaw),
+              class_evidence=ev * w, weight_sum=w, existence=0.0, observations=n,
+              first_seen_ns=int(o.first_seen_ns), last_seen_ns=int(o.last_seen_ns),
+              score_sum=float(o.score) * n / (1.0 - np.exp(-n / 3.0)), confirmed=True)  # score kept as saved
+    R = t.rotation
+    t.prims_local = [((R.T @ (p.center - t.center)) / np.maximum(t.size, 1e-6),
+                      (np.abs(R.T @ p.rotation) @ p.size) / np.maximum(t.size, 1e-6)) for p in o.primitives]
+    t.prims_weight = w
+    return t

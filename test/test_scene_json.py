@@ -1,0 +1,70 @@
+"""Scene map JSON: round trip of objects and grid; a loaded map keeps updating."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from shape_detector.scene import SceneMap
+from test_scene_support import K, detection, pose, render, room
+
+T0 = pose(0.0, 0.0, 1.2, 0.0)
+CHAIR = ((3.0, 0.0, 0.45), (0.5, 0.5, 0.9), 0.2)
+SEAT = ((3.0, 0.0, 0.45), (0.5, 0.5, 0.05))
+
+
+def _map() -> SceneMap:
+    m = SceneMap()
+    d = render(room([CHAIR]), T0)
+    for i in range(4):
+        m.update([detection(*CHAIR, T0, score=0.9, parts=[SEAT])], T0, d, K, stamp_ns=1_000 + i)
+    return m
+
+
+def test_round_trip(tmp_path):
+    m = _map()
+    path = tmp_path / "scene.json"
+    m.save_json(path)
+    doc = json.loads(path.read_text())
+    assert doc["frame_id"] == "odom" and doc["stamp_ns"] == 1_003
+    o = doc["objects"][0]
+    assert set(o) >= {"id", "class", "score", "center", "size", "rotation", "yaw", "observations",
+                      "first_seen_ns", "last_seen_ns", "primitives"}
+    assert {"resolution", "origin", "width", "height"} <= set(doc["grid"])
+    back = SceneMap.from_json(path)
+    assert back.frame_id == "odom" and back.stamp_ns == m.stamp_ns
+    a, b = m.objects()[0], back.objects()[0]
+    assert (a.id, a.class_name, a.observations, a.first_seen_ns, a.last_seen_ns) == \
+        (b.id, b.class_name, b.observations, b.first_seen_ns, b.last_seen_ns)
+    assert abs(a.score - b.score) < 1e-9 and abs(a.yaw - b.yaw) < 1e-9
+    for x, y in ((a.center, b.center), (a.size, b.size), (a.rotation, b.rotation)):
+        np.testing.assert_allclose(x, y, atol=1e-9)
+    np.testing.assert_allclose(a.primitives[0].center, b.primitives[0].center, atol=1e-9)
+    np.testing.assert_allclose(a.primitives[0].size, b.primitives[0].size, atol=1e-9)
+    ga, gb = m.grid(), back.grid()
+    assert (ga.width, ga.height) == (gb.width, gb.height)
+    np.testing.assert_allclose(ga.origin, gb.origin, atol=1e-9)
+    assert np.array_equal(ga.data, gb.data)
+    assert SceneMap.from_json(doc).objects()[0].id == a.id  # a dict works too
+
+
+def test_loaded_map_keeps_updating_with_the_same_id():
+    back = SceneMap.from_json(_map().to_json())
+    back.update([detection(*CHAIR, T0)], T0, None, None, stamp_ns=5_000)
+    objs = back.objects()
+    assert len(objs) == 1 and objs[0].id == 1 and objs[0].last_seen_ns == 5_000
+    new = detection((3.0, 2.0, 0.4), (0.5, 0.5, 0.8), 0.0, T0)
+    for i in range(3):
+        back.update([new], T0, None, None, stamp_ns=6_000 + i)
+    assert [o.id for o in back.objects()] == [1, 2]
+
+
+def test_bad_documents_raise_clearly(tmp_path):
+    with pytest.raises(ValueError, match="scene map"):
+        SceneMap.from_json({"objects": []})
+    doc = _map().to_json()
+    doc["grid"]["width"] += 1
+    with pytest.raises(ValueError, match="grid data"):
+        SceneMap.from_json(doc)
