@@ -25,6 +25,7 @@ from .image import (
 )
 from .markers import objects_to_markers, quaternion_to_rotation, rotation_to_quaternion
 from .msgtypes import MsgTypes, message_type_name, rclpy_types, rosbags_types
+from .scene import grid_to_occupancy, occupancy_to_cells, scene_to_markers
 from .stamps import header_to_ns_frame, make_header, ns_to_duration, ns_to_stamp, seconds_to_duration, stamp_to_ns
 from .vision_msgs_defs import VISION_MSGS_DEFS, register_vision_msgs
 
@@ -41,6 +42,7 @@ __all__ = [
     "detection2d_array_to_boxes",
     "detection3d_array_to_objects",
     "encoding_info",
+    "grid_to_occupancy",
     "header_to_ns_frame",
     "image_to_depth",
     "image_to_numpy",
@@ -52,12 +54,14 @@ __all__ = [
     "numpy_to_image",
     "objects_to_detection3d_array",
     "objects_to_markers",
+    "occupancy_to_cells",
     "quaternion_to_rotation",
     "rclpy_types",
     "register_vision_msgs",
     "rosbags_types",
     "rotation_to_quaternion",
     "scale_K",
+    "scene_to_markers",
     "seconds_to_duration",
     "stamp_to_ns",
 ]

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from mcap.writer import CompressionType
 
-from shape_detector.bag_io import MARKERS_TOPIC, open_bag, read_messages, write_rgbd_bag
+from shape_detector.bags.source import MARKERS_TOPIC, open_bag, read_messages
+from shape_detector.synth.bag import write_rgbd_bag
 from shape_detector.replay import replay_bag
 from test_replay import FakeDetector, _cli, synthetic_frames
 
@@ -131,7 +132,7 @@ def test_truncated_bag_with_a_damaged_chunk_keeps_the_rest(crc_bag, tmp_path):
 def test_random_byte_damage_never_escapes(crc_bag, tmp_path):
     """Scattered byte damage: a summary (damage named, frames counted) or a clear
     BagReadError / ValueError - never another exception."""
-    from shape_detector.bag_io import BagReadError
+    from shape_detector.bags.source import BagReadError
 
     data = bytearray(next(crc_bag.glob("*.mcap")).read_bytes())
     rng = np.random.default_rng(7)

@@ -10,18 +10,13 @@ import numpy as np
 import pytest
 
 from msg_conversion import K_to_camera_info, depth_to_image, numpy_to_image, rosbags_types
-from shape_detector.bag_io import (
-    BagFrameReader,
-    BagReadError,
-    FrameError,
-    OutputBag,
-    convert_message,
-    open_bag,
-    prepare_frame,
-    read_messages,
-    select_topics,
-    write_rgbd_bag,
-)
+from shape_detector.bags.output import OutputBag
+from shape_detector.bags.reader import BagFrameReader
+from shape_detector.bags.ros1 import convert_message
+from shape_detector.bags.source import BagReadError, open_bag, read_messages
+from shape_detector.bags.topics import select_topics
+from shape_detector.frame_prep import FrameError, prepare_frame
+from shape_detector.synth.bag import write_rgbd_bag
 from shape_detector.types import Object3D
 
 MS = 1_000_000
@@ -249,7 +244,7 @@ def test_output_bag_and_ros1_conversion(tmp_path):
             ob.copy(m, src)
         ob.write_objects([obj], 123, "cam")
     topics = {}
-    for topic, t, msg in read_messages(out):
+    for topic, _t, msg in read_messages(out):
         topics.setdefault(topic, []).append(msg)
     assert len(topics["/camera/color/image_raw"]) == 3
     info = topics["/camera/color/camera_info"][0]

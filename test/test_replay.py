@@ -13,8 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from shape_detector.bag_io import DETECTIONS_TOPIC, MARKERS_TOPIC, BagFrameReader, read_messages, write_rgbd_bag
+from shape_detector.bags.reader import BagFrameReader
+from shape_detector.bags.source import DETECTIONS_TOPIC, MARKERS_TOPIC, read_messages
 from shape_detector.replay import replay_bag
+from shape_detector.synth.bag import write_rgbd_bag
 from shape_detector.types import Object3D
 
 ROOT = Path(__file__).resolve().parents[1]

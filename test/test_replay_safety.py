@@ -6,17 +6,17 @@ from __future__ import annotations
 import argparse
 import errno
 import os
-import shutil
 import signal
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from shape_detector.bag_io import MARKERS_TOPIC, read_messages, write_rgbd_bag
+from shape_detector.bags.source import MARKERS_TOPIC, read_messages
 from shape_detector.bags.output import OutputError
 from shape_detector.bags.output_safety import UnsafeOutputError, check_output_path
 from shape_detector.replay import configure_parser, replay_bag
+from shape_detector.synth.bag import write_rgbd_bag
 from test_replay import FakeDetector, _cli, synthetic_frames
 
 FAKE = ["--detector", "test_replay:FakeDetector", "--no-progress"]
@@ -268,7 +268,7 @@ def test_all_frames_skipped_exit_3(tmp_path):
         ci = w.add_connection("/c/color/image_raw", "sensor_msgs/msg/Image", typestore=st)
         cd = w.add_connection("/c/depth/image_raw", "sensor_msgs/msg/Image", typestore=st)
         ck = w.add_connection("/c/color/camera_info", "sensor_msgs/msg/CameraInfo", typestore=st)
-        for t, rgb, depth, KK in synthetic_frames(3, 160, 120):
+        for t, _rgb, depth, KK in synthetic_frames(3, 160, 120):
             from msg_conversion import make_header
 
             img = T.make_by_name("sensor_msgs/msg/Image", header=make_header(T, t, "cam"), height=120, width=160,

@@ -1,6 +1,3 @@
-"""Bags: the CRC-checked MCAP writer, the output bag, output-path safety, damaged-chunk
-reading and the replay command's argument checks and run loop.
-
-The older reader (``open_bag``, ``BagFrameReader``) still lives in
-:mod:`shape_detector.bag_io`; new bag code goes here, one job per module.
-"""
+"""Bags: reading (source, topics, reader, damaged-MCAP recovery, ROS 1 conversion), the output
+bag (CRC-checked MCAP writer, output-path safety), and the replay (offline loop, player, CLI
+checks, detector factory, scene recording). One job per module."""

@@ -1,12 +1,11 @@
-"""Chunk-level integrity of MCAP inputs: find damaged chunks, read around them.
+"""Chunk-level integrity of MCAP inputs: find damaged chunks.
 
 A chunk is damaged when its recorded CRC (of the uncompressed records) does not match,
 when it does not decompress, or when its records do not parse. :func:`scan_mcap` checks
-every chunk of a file through its summary's chunk index; :class:`McapCheckedSource`
-then reads the file chunk by chunk, skipping the damaged ones, so their messages are
-reported (file, chunk, byte offset, expected vs actual CRC, messages per topic) instead
-of being replayed as corrupt data. Files written with CRC 0 ("not recorded") can only be
-checked for decompression and record framing.
+every chunk of a file through its summary's chunk index (the ``mcap`` library reads the
+summary, the chunks and decompresses them); :mod:`.mcap_checked` then reads around the
+damaged ones. Files written with CRC 0 ("not recorded") can only be checked for
+decompression and record framing.
 """
 
 from __future__ import annotations
@@ -19,12 +18,37 @@ from pathlib import Path
 from typing import IO, Any
 
 from mcap.data_stream import ReadDataStream
-from mcap.records import Channel, Chunk, ChunkIndex, Message, Schema
-from mcap.stream_reader import CRCValidationError, breakup_chunk, get_chunk_data_stream
-
-from ..bag_io import RawMessage, _iter_records, _McapRecoverySource, _Truncated
+from mcap.records import Chunk, ChunkIndex
+from mcap.stream_reader import CRCValidationError, get_chunk_data_stream
 
 _OP_CHUNK, _OP_MESSAGE_INDEX = 0x06, 0x07
+
+
+class Truncated(Exception):
+    """Bytes end inside a record (or a record cannot be framed)."""
+
+
+def iter_records(buf: bytes, partial_ok: bool) -> Iterator[tuple[int, bytes]]:
+    """``(opcode, content)`` of the records framed in ``buf``; a cut-off last record ends the
+    iteration when ``partial_ok``, else raises :class:`Truncated`.
+
+    The ``mcap`` library parses records but stops with an error at the first cut-off one; this
+    framing is what lets the records before the cut (inside a cut-off chunk) be read.
+    """
+    off, n = 0, len(buf)
+    while off < n:
+        if off + 9 > n:
+            if partial_ok:
+                return
+            raise Truncated("record header cut off")
+        op = buf[off]
+        (length,) = struct.unpack_from("<Q", buf, off + 1)
+        if off + 9 + length > n:
+            if partial_ok:
+                return
+            raise Truncated("record cut off")
+        yield op, buf[off + 9 : off + 9 + length]
+        off += 9 + length
 
 
 @dataclass
@@ -62,10 +86,10 @@ def chunk_problem(chunk: Chunk) -> tuple[str, int | None, int | None] | None:
     if len(data) != chunk.uncompressed_size:
         return f"uncompressed size {len(data)} != recorded {chunk.uncompressed_size}", None, None
     try:
-        for op, content in _iter_records(data, partial_ok=False):
+        for op, content in iter_records(data, partial_ok=False):
             if op == 0x05 and len(content) < 22:
-                raise _Truncated("message record shorter than its header")
-    except (_Truncated, struct.error) as e:
+                raise Truncated("message record shorter than its header")
+    except (Truncated, struct.error) as e:
         return f"records do not parse ({e})", None, None
     return None
 
@@ -88,7 +112,8 @@ def parse_chunk(content: bytes) -> Chunk:
     return chunk
 
 
-def _lost_messages(fh: IO[bytes], ci: ChunkIndex, topics: dict[int, str]) -> dict[str, int]:
+def lost_messages(fh: IO[bytes], ci: ChunkIndex, topics: dict[int, str]) -> dict[str, int]:
+    """Topic -> messages in the chunk ``ci``, from its message-index records."""
     lost: dict[str, int] = {}
     for cid, off in ci.message_index_offsets.items():
         fh.seek(off)
@@ -101,7 +126,8 @@ def _lost_messages(fh: IO[bytes], ci: ChunkIndex, topics: dict[int, str]) -> dic
     return lost
 
 
-def _summary(fh: IO[bytes]) -> Any:
+def read_summary(fh: IO[bytes]) -> Any:
+    """The file's summary (``mcap`` library), or None when it has no readable one."""
     from mcap.reader import make_reader
 
     try:
@@ -114,7 +140,7 @@ def scan_mcap(path: Path) -> list[ChunkDamage] | None:
     """Damaged chunks of one MCAP file (``[]``: all good); None when the file has no
     readable summary (truncated or unfinalised - checked while reading instead)."""
     with open(path, "rb") as fh:
-        summary = _summary(fh)
+        summary = read_summary(fh)
         if summary is None:
             return None
         topics = {cid: ch.topic for cid, ch in summary.channels.items()}
@@ -127,75 +153,5 @@ def scan_mcap(path: Path) -> list[ChunkDamage] | None:
             if problem is not None:
                 reason, exp, act = problem
                 damage.append(ChunkDamage(path, k, ci.chunk_start_offset, reason, exp, act,
-                                          _lost_messages(fh, ci, topics)))
+                                          lost_messages(fh, ci, topics)))
         return damage
-
-
-class McapCheckedSource(_McapRecoverySource):
-    """MCAP files read chunk by chunk through their chunk index (chunks in time order,
-    messages in time order within a chunk), skipping the chunks in ``damage``.
-    ``damage``: every :class:`ChunkDamage` found (reported by the replay)."""
-
-    def __init__(self, path: Path, files: list[Path], damage: list[ChunkDamage]) -> None:
-        self._bad = {(d.file, d.offset) for d in damage}
-        super().__init__(path, files, f"{len(damage)} damaged chunk(s) skipped")
-        self.damage = list(damage)
-        self.recovered = False
-
-    def _schema(self, s: Schema) -> None:
-        self._schemas[s.id] = (s.name, s.encoding, bytes(s.data))
-        self._register_schema(s.name, s.encoding, bytes(s.data))
-
-    def _channel(self, c: Channel) -> None:
-        name = self._schemas.get(c.schema_id, ("", "", b""))[0]
-        self._channels[c.id] = (c.topic, name)
-        if name:
-            self.topics.setdefault(c.topic, name)
-
-    def _records_of(self, f: Path) -> Iterator[RawMessage]:
-        with open(f, "rb") as fh:
-            summary = _summary(fh)
-            if summary is None:
-                yield from super()._records_of(f)
-                return
-            for s in summary.schemas.values():
-                self._schema(s)
-            for c in summary.channels.values():
-                self._channel(c)
-            chunks = sorted(summary.chunk_indexes, key=lambda c: (c.message_start_time, c.chunk_start_offset))
-            for ci in chunks:
-                if (f, ci.chunk_start_offset) in self._bad:
-                    continue
-                if self._scan:
-                    self._scan_count += sum(_lost_messages(fh, ci, {}).values())
-                    continue
-                try:
-                    records = breakup_chunk(read_chunk(fh, ci), validate_crc=True)
-                except Exception as e:  # noqa: BLE001 - damage the scan could not see (no CRC recorded)
-                    raise _Truncated(f"{f.name}: chunk at byte {ci.chunk_start_offset} unreadable: "
-                                     f"{type(e).__name__}: {e}") from None
-                yield from self._chunk_messages(records)
-
-    def _chunk_messages(self, records: list) -> Iterator[RawMessage]:
-        msgs = []
-        for rec in records:
-            if isinstance(rec, Schema):
-                self._schema(rec)
-            elif isinstance(rec, Channel):
-                self._channel(rec)
-            elif isinstance(rec, Message) and rec.channel_id in self._channels:
-                msgs.append(rec)
-        for m in sorted(msgs, key=lambda m: m.log_time):
-            topic, msgtype = self._channels[m.channel_id]
-            yield RawMessage(topic, msgtype, m.log_time, bytes(m.data))
-
-
-def checked_source(path: Path, files: list[Path]) -> McapCheckedSource | None:
-    """A :class:`McapCheckedSource` when any of ``files`` has a damaged chunk, else None
-    (the files are fine, or have no summary and are checked while reading)."""
-    damage: list[ChunkDamage] = []
-    for f in files:
-        found = scan_mcap(f)
-        if found:
-            damage.extend(found)
-    return McapCheckedSource(path, files, damage) if damage else None

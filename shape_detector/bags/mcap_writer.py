@@ -94,6 +94,7 @@ class CrcWriter(Writer):
         self._file_name = file_name
 
     def open(self) -> None:
+        """Create the bag directory and the MCAP storage."""
         try:
             self.path.mkdir(mode=0o755, parents=True)
         except FileExistsError:

@@ -1,5 +1,6 @@
 """The output bag of a replay: a rosbag2 MCAP (CRC-checked chunks) holding the input
-topics plus ``/shape_detector/markers`` and ``/shape_detector/detections``.
+topics plus ``/shape_detector/markers`` and ``/shape_detector/detections`` and, with a scene,
+``/shape_detector/scene`` (MarkerArray, world frame) and ``/shape_detector/map`` (OccupancyGrid).
 
 Every OS error while writing (disk full, read-only file system, permission denied)
 surfaces as :class:`OutputError`, which names the output path and the cause.
@@ -9,9 +10,20 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
-from ..bag_io import DET3D_T, DETECTIONS_TOPIC, MARKERS_T, MARKERS_TOPIC, BagSource, RawMessage, convert_message
+from .ros1 import convert_message
+from .source import (
+    DET3D_T,
+    DETECTIONS_TOPIC,
+    MAP_TOPIC,
+    MARKERS_T,
+    MARKERS_TOPIC,
+    OCCUPANCY_T,
+    SCENE_TOPIC,
+    BagSource,
+    RawMessage,
+)
 from .mcap_writer import CrcWriter
 from .output_safety import OutputError
 
@@ -46,6 +58,7 @@ class OutputBag:
         self.types = rosbags_types()
         self.store = self.types.typestore
         self._conns: dict[str, Any] = {}
+        self._scene_conns: dict[str, Any] = {}
         self.skipped_topics: dict[str, str] = {}
         self.counts: dict[str, int] = {}
         self.write_detections = bool(write_detections and self.types.has_vision_msgs)
@@ -66,7 +79,7 @@ class OutputBag:
         conn = self._conns.get(m.topic)
         if conn is not None or m.topic in self.skipped_topics:
             return conn
-        if m.topic in (MARKERS_TOPIC, DETECTIONS_TOPIC):
+        if m.topic in (MARKERS_TOPIC, DETECTIONS_TOPIC, SCENE_TOPIC, MAP_TOPIC):
             self.skipped_topics[m.topic] = "the input's own copy; replaced by this run's output"
             return None
         try:
@@ -118,6 +131,22 @@ class OutputBag:
                 self._writer.write(self._dets, int(stamp_ns), self.store.serialize_cdr(dets, DET3D_T))
             self.counts[DETECTIONS_TOPIC] = self.counts.get(DETECTIONS_TOPIC, 0) + 1
 
+    def write_scene(self, objects: list, grid: Any, stamp_ns: int, frame_id: str) -> None:
+        """The scene's objects (MarkerArray) and navigation grid (OccupancyGrid) in world frame
+        ``frame_id``, at log time ``stamp_ns``."""
+        from msg_conversion.scene import grid_to_occupancy, scene_to_markers
+
+        with self._os_errors():
+            for topic, msgtype, msg in (
+                (SCENE_TOPIC, MARKERS_T, scene_to_markers(objects, self.types, stamp_ns, frame_id)),
+                (MAP_TOPIC, OCCUPANCY_T, grid_to_occupancy(grid, self.types, stamp_ns, frame_id)),
+            ):
+                conn = self._scene_conns.get(topic)
+                if conn is None:
+                    conn = self._scene_conns[topic] = self._writer.add_connection(topic, msgtype, typestore=self.store)
+                self._writer.write(conn, int(stamp_ns), self.store.serialize_cdr(msg, msgtype))
+                self.counts[topic] = self.counts.get(topic, 0) + 1
+
     def close(self) -> None:
         """Finalise: MCAP summary and footer, then ``metadata.yaml``."""
         if not self._closed:
@@ -134,7 +163,7 @@ class OutputBag:
             except OSError:
                 pass
 
-    def __enter__(self) -> "OutputBag":
+    def __enter__(self) -> OutputBag:
         return self
 
     def __exit__(self, *exc: Any) -> None:
@@ -150,7 +179,7 @@ class _WrapOSError:
     def __enter__(self) -> None:
         return None
 
-    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> bool:
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> Literal[False]:
         if exc is not None and isinstance(exc, OSError) and not isinstance(exc, OutputError):
             raise OutputError(self.path, exc) from exc
         return False

@@ -17,7 +17,7 @@ import shutil
 import signal
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import Any, Literal
 
 #: exit status of a run stopped by a signal: 128 + the signal number (shell convention)
 EXIT_SIGINT = 128 + int(signal.SIGINT)
@@ -173,9 +173,10 @@ class StopSignals:
         return None if self.signum is None else signal.Signals(self.signum).name
 
     def __call__(self) -> str | None:
+        """The received signal's name, or None (a ``should_stop`` callable)."""
         return self.name
 
-    def __enter__(self) -> "StopSignals":
+    def __enter__(self) -> StopSignals:
         import threading
 
         if threading.current_thread() is threading.main_thread():
@@ -218,7 +219,7 @@ class SafeOutputBag:
             raise
         return self.bag
 
-    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> bool:
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> Literal[False]:
         if exc is not None:
             self.bag.abort()
             self.partial.discard()

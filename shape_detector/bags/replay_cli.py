@@ -50,7 +50,7 @@ def _check_output_early(args: argparse.Namespace) -> int | None:
 
 def _exit_for(e: Exception, os_prefix: str = "") -> int:
     """Print one line for an expected error and return its exit status (no traceback)."""
-    from ..bag_io import BagReadError
+    from .source import BagReadError
 
     if isinstance(e, UnsafeOutputError):
         _err(f"{e}; choose another -o/--out")
@@ -90,19 +90,24 @@ def run_offline(args: argparse.Namespace, make_detector: Any, replay_bag: Any) -
 
 
 def _run(args: argparse.Namespace, make_detector: Any, replay_bag: Any) -> int:
-    from ..bag_io import BagReadError
+    from ..config_cli import config_from_args
+    from ..replay import scene_options
+    from .source import BagReadError
 
     if (rc := _check_output_early(args)) is not None:
         return rc
-    proposals = args.proposals or ("external" if args.detections2d else "geometric")
+    proposals = args.proposals or args.proposal_source or ("external" if args.detections2d else "geometric")
     if proposals == "external" and not args.detections2d:
         _err("--proposals external needs --detections2d TOPIC")
         return EXIT_USAGE
+    try:
+        config = config_from_args(args, proposal_source=proposals)
+    except ValueError as e:
+        _err(str(e))
+        return EXIT_USAGE
     with StopSignals() as stop:
         try:
-            detector = make_detector(args.weights, args.device, args.score_threshold, args.max_objects, proposals,
-                                     args.detector, workers=args.workers, precision=args.precision,
-                                     classifier=args.classifier, refine=not args.no_refine)
+            detector = make_detector(config, args.detector)
         except Exception as e:  # noqa: BLE001
             _err(f"cannot create the detector: {type(e).__name__}: {e}")
             return EXIT_ERROR
@@ -116,6 +121,7 @@ def _run(args: argparse.Namespace, make_detector: Any, replay_bag: Any) -> int:
                 queue_size=args.queue_size, depth_scale=args.depth_scale, up=args.up,
                 size_mismatch=args.size_mismatch, write_detections=not args.no_detections,
                 overwrite=args.overwrite, copy_input=not args.no_copy, should_stop=stop,
+                scene=scene_options(args),
             )
         except (OSError, ValueError, BagReadError) as e:
             return _exit_for(e)

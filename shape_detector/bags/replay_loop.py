@@ -1,7 +1,7 @@
 """The offline replay loop: read synchronised frames, detect, write; stop on request.
 
-Split from :mod:`shape_detector.replay` (which keeps the summary, the progress bar and
-the CLI); ``summary`` here is a :class:`shape_detector.replay.ReplaySummary`.
+``summary`` here is a :class:`~shape_detector.bags.summary.ReplaySummary`; ``scene`` an optional
+:class:`~shape_detector.bags.scene_record.SceneRecorder` updated after every frame.
 """
 
 from __future__ import annotations
@@ -10,7 +10,9 @@ import math
 import time
 from typing import Any
 
-from ..bag_io import BagFrameReader, BagReadError, FrameError, RawMessage
+from ..frame_prep import FrameError
+from .reader import BagFrameReader
+from .source import BagReadError, RawMessage
 
 
 class _Stopped(Exception):
@@ -66,7 +68,7 @@ def count_damage(summary: Any, source: Any, image_topic: str) -> None:
 
 def replay_loop(reader: BagFrameReader, out: Any, detector: Any, summary: Any, bar: Any, *,
                 copy_input: bool, up_vec: Any, depth_scale: float | None, size_mismatch: str,
-                on_frame: Any, should_stop: Any) -> None:
+                on_frame: Any, should_stop: Any, scene: Any = None) -> None:
     """Read, detect, write; returns normally after input damage or a stop request."""
     source = reader.source
     roles = reader.selection.roles()
@@ -91,8 +93,13 @@ def replay_loop(reader: BagFrameReader, out: Any, detector: Any, summary: Any, b
         check_stop()
         for frame in reader.frames(on_message=on_message, all_topics=copy_input):
             summary.synced += 1
+            detected = summary.detected
             prepared, objects = _detect_frame(frame, detector, summary, up_vec, depth_scale, size_mismatch)
             out.write_objects(objects, frame.stamp_ns, frame.frame_id)
+            if scene is not None:  # one scene and map per frame; a skipped frame repeats the current state
+                used = prepared if summary.detected > detected else None  # learn only from detected frames
+                scene.update(frame, used, objects, up_vec if up_vec is not None else frame.up)
+                scene.write(out, frame.stamp_ns)
             summary.frames_out += 1
             summary.objects += len(objects)
             summary.objects_per_class.update(o.class_name for o in objects)

@@ -19,8 +19,9 @@ from __future__ import annotations
 
 import json
 import shutil
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -36,6 +37,7 @@ G = 9.80665
 
 
 def sidecar_dict(frames: Sequence[Frame], depth_stamps: Sequence[int] | None = None) -> dict:
+    """The ``gt.json`` content of ``frames``: per colour stamp K, up, size, depth stamp, objects."""
     out: dict = {"frame_id": frames[0].frame_id if frames else "", "color_topic": COLOR_TOPIC,
                  "depth_topic": DEPTH_TOPIC, "camera_info_topic": INFO_TOPIC, "frames": {}}
     for i, f in enumerate(frames):
@@ -65,17 +67,55 @@ def read_sidecar(bag_dir: str | Path) -> dict[int, dict]:
     return out
 
 
+def _imu_messages(frames: Sequence[Frame], stamps: list[int], period: int, imu_rate_hz: float,
+                  rng: np.random.Generator, types: Any, fid: str) -> list[tuple[int, str, object, str]]:
+    """Accelerometer messages between the first and last frame: gravity up (interpolated between
+    frames) plus noise and hand shake, camera optical frame."""
+    from msg_conversion.stamps import make_header
+
+    store = types.typestore
+    msgs: list[tuple[int, str, object, str]] = []
+    Imu = store.types["sensor_msgs/msg/Imu"]
+    Vector3 = store.types["geometry_msgs/msg/Vector3"]
+    Quaternion = store.types["geometry_msgs/msg/Quaternion"]
+    ups = np.array([f.up for f in frames])
+    t0, t1 = stamps[0] - period // 2, stamps[-1] + period // 2
+    n = max(2, int((t1 - t0) * imu_rate_hz / 1e9))
+    ti = t0 + np.arange(n) * int(round(1e9 / imu_rate_hz))
+    cov = [0.0] * 9
+    for t in ti:
+        # up interpolated between frames (piecewise linear), plus accelerometer noise & hand shake
+        up = np.array([np.interp(t, stamps, ups[:, k]) for k in range(3)])
+        up /= np.linalg.norm(up)
+        a = G * up + rng.normal(0, 0.05, 3) + rng.normal(0, 0.15, 3)
+        msg = Imu(
+            header=make_header(types, int(t), fid),
+            orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
+            orientation_covariance=np.array([-1.0] + [0.0] * 8),
+            angular_velocity=Vector3(x=float(rng.normal(0, 0.01)), y=float(rng.normal(0, 0.01)),
+                                     z=float(rng.normal(0, 0.01))),
+            angular_velocity_covariance=np.array(cov),
+            linear_acceleration=Vector3(x=float(a[0]), y=float(a[1]), z=float(a[2])),
+            linear_acceleration_covariance=np.array([0.0025, 0, 0, 0, 0.0025, 0, 0, 0, 0.0025]),
+        )
+        msgs.append((int(t) + 2_000_000, IMU_TOPIC, msg, "sensor_msgs/msg/Imu"))
+    return msgs
+
+
 def write_bag(frames: Sequence[Frame], out_path: str | Path, rate_hz: float = 5.0, seed: int = 0,
               compress: bool = True, imu: bool = True, imu_rate_hz: float = 50.0, overwrite: bool = False,
-              max_offset_ms: float = 12.0) -> Path:
+              max_offset_ms: float = 12.0,
+              extra_messages: Sequence[tuple[int, str, Any, str]] = ()) -> Path:
     """Write ``frames`` (stamps taken from them, or re-stamped at ``rate_hz`` when not increasing)
-    as a rosbag2 MCAP directory ``out_path`` plus ``gt.json``; returns the directory."""
+    as a rosbag2 MCAP directory ``out_path`` plus ``gt.json``; returns the directory.
+
+    ``extra_messages``: more ``(log time ns, topic, rosbags message, type name)`` to write (e.g.
+    ``/tf``), merged in log-time order."""
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
     from msg_conversion.camera_info import K_to_camera_info
     from msg_conversion.image import depth_to_image, numpy_to_image
     from msg_conversion.msgtypes import rosbags_types
-    from msg_conversion.stamps import make_header
 
     out = Path(out_path)
     if out.exists():
@@ -117,30 +157,8 @@ def write_bag(frames: Sequence[Frame], out_path: str | Path, rate_hz: float = 5.
                      K_to_camera_info(f.K, f.width, f.height, types, stamp_ns=sd, frame_id=fid),
                      "sensor_msgs/msg/CameraInfo"))
     if imu and frames[0].up is not None:
-        Imu = store.types["sensor_msgs/msg/Imu"]
-        Vector3 = store.types["geometry_msgs/msg/Vector3"]
-        Quaternion = store.types["geometry_msgs/msg/Quaternion"]
-        ups = np.array([f.up for f in frames])
-        t0, t1 = stamps[0] - period // 2, stamps[-1] + period // 2
-        n = max(2, int((t1 - t0) * imu_rate_hz / 1e9))
-        ti = t0 + np.arange(n) * int(round(1e9 / imu_rate_hz))
-        cov = [0.0] * 9
-        for t in ti:
-            # up interpolated between frames (piecewise linear), plus accelerometer noise & hand shake
-            up = np.array([np.interp(t, stamps, ups[:, k]) for k in range(3)])
-            up /= np.linalg.norm(up)
-            a = G * up + rng.normal(0, 0.05, 3) + rng.normal(0, 0.15, 3)
-            msg = Imu(
-                header=make_header(types, int(t), fid),
-                orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
-                orientation_covariance=np.array([-1.0] + [0.0] * 8),
-                angular_velocity=Vector3(x=float(rng.normal(0, 0.01)), y=float(rng.normal(0, 0.01)),
-                                         z=float(rng.normal(0, 0.01))),
-                angular_velocity_covariance=np.array(cov),
-                linear_acceleration=Vector3(x=float(a[0]), y=float(a[1]), z=float(a[2])),
-                linear_acceleration_covariance=np.array([0.0025, 0, 0, 0, 0.0025, 0, 0, 0, 0.0025]),
-            )
-            msgs.append((int(t) + 2_000_000, IMU_TOPIC, msg, "sensor_msgs/msg/Imu"))
+        msgs += _imu_messages(frames, stamps, period, imu_rate_hz, rng, types, fid)
+    msgs.extend(extra_messages)
     msgs.sort(key=lambda m: m[0])
     with w:
         conns = {}
@@ -151,6 +169,76 @@ def write_bag(frames: Sequence[Frame], out_path: str | Path, rate_hz: float = 5.
             w.write(conns[topic], int(t), store.serialize_cdr(msg, ty))
     (out / SIDECAR).write_text(json.dumps(sidecar_dict(frames, depth_stamps), separators=(",", ":")))
     return out
+
+
+def write_rgbd_bag(
+    path: str | Path,
+    frames: Iterable[tuple[int, np.ndarray, np.ndarray, np.ndarray]],
+    *,
+    storage: str = "mcap",
+    image_topic: str = "/camera/color/image_raw",
+    depth_topic: str = "/camera/depth/image_raw",
+    info_topic: str = "/camera/color/camera_info",
+    color_encoding: str = "rgb8",
+    depth_encoding: str = "16UC1",
+    frame_id: str = "camera_color_optical_frame",
+    depth_offset_ns: int = 0,
+) -> Path:
+    """Write ``(stamp_ns, rgb, depth_m, K)`` frames as a bag: colour image, depth image
+    (stamp + ``depth_offset_ns``) and camera_info per frame, log time = stamp.
+
+    ``storage``: ``'mcap'`` or ``'sqlite3'`` (rosbag2 directory ``path``) or ``'ros1'``
+    (ROS 1 ``.bag`` file ``path``). For tests, tools and examples.
+    """
+    from msg_conversion.camera_info import K_to_camera_info
+
+    from ..bags.ros1 import convert_message
+    from ..bags.source import CAMERA_INFO_T, IMAGE_T
+    from msg_conversion.image import depth_to_image, numpy_to_image
+    from msg_conversion.msgtypes import rosbags_types
+
+    path = Path(path)
+    T = rosbags_types()
+    store = T.typestore
+    if color_encoding.startswith("bgr"):
+        def colour(rgb: np.ndarray) -> np.ndarray:
+            return np.ascontiguousarray(rgb[..., ::-1])
+    else:
+        def colour(rgb: np.ndarray) -> np.ndarray:
+            return rgb
+
+    def messages() -> Iterator[tuple[str, str, int, Any]]:
+        for stamp, rgb, depth, K in frames:
+            h, w = rgb.shape[:2]
+            yield image_topic, IMAGE_T, stamp, numpy_to_image(colour(rgb), color_encoding, T, stamp, frame_id)
+            dstamp = stamp + depth_offset_ns
+            yield depth_topic, IMAGE_T, dstamp, depth_to_image(depth, T, depth_encoding, dstamp, frame_id)
+            yield info_topic, CAMERA_INFO_T, stamp, K_to_camera_info(K, w, h, T, stamp, frame_id)
+
+    if storage == "ros1":
+        from rosbags.rosbag1 import Writer as Writer1
+        from rosbags.typesys import Stores, get_typestore
+
+        ros1 = get_typestore(Stores.ROS1_NOETIC)
+        with Writer1(path) as w:
+            conns: dict[str, Any] = {}
+            for topic, typ, t, msg in messages():
+                if topic not in conns:
+                    conns[topic] = w.add_connection(topic, typ, typestore=ros1)
+                w.write(conns[topic], t, ros1.serialize_ros1(convert_message(msg, typ, ros1), typ))
+        return path
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}.get(storage)
+    if plugin is None:
+        raise ValueError(f"storage must be 'mcap', 'sqlite3' or 'ros1', got {storage!r}")
+    with Writer(path, version=8, storage_plugin=plugin) as w:
+        conns = {}
+        for topic, typ, t, msg in messages():
+            if topic not in conns:
+                conns[topic] = w.add_connection(topic, typ, typestore=store)
+            w.write(conns[topic], t, store.serialize_cdr(msg, typ))
+    return path
 
 
 SAMPLE_ROOMS = ("living", "bedroom", "office", "dining")

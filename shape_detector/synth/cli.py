@@ -1,4 +1,4 @@
-"""``shape-detector synth``: dataset shards, the sample bag, the README figure, a benchmark."""
+"""``shape-detector synth``: dataset shards, the sample bag, walk-through bags, the README figure, a benchmark."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import argparse
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
+    """Subcommands dataset, bag, walkthrough, figure, bench."""
     sub = p.add_subparsers(dest="synth_cmd", required=True)
     d = sub.add_parser("dataset", help="generate training shards (multiprocessing)")
     d.add_argument("--out", required=True, help="output directory")
@@ -25,6 +26,15 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     b.add_argument("--width", type=int, default=320, help="default 320x240 keeps the 12-frame sample bag < 5 MB")
     b.add_argument("--height", type=int, default=240)
     b.add_argument("--no-compress", action="store_true", help="no zstd chunk compression")
+    w = sub.add_parser("walkthrough", help="write a walk-through bag: a camera moving through one room, with "
+                       "/tf, /tf_static, /odom, gt.json and world-frame gt_world.json")
+    w.add_argument("--out", required=True, help="output bag directory (replaced if it exists)")
+    w.add_argument("--frames", type=int, default=40)
+    w.add_argument("--seed", type=int, default=0)
+    w.add_argument("--rate", type=float, default=5.0, help="frame rate (Hz)")
+    w.add_argument("--width", type=int, default=320)
+    w.add_argument("--height", type=int, default=240)
+    w.add_argument("--no-compress", action="store_true", help="no zstd chunk compression")
     f = sub.add_parser("figure", help="README figure: grid of RGB | depth frames with GT boxes")
     f.add_argument("--out", required=True)
     f.add_argument("--seed", type=int, default=3)
@@ -35,6 +45,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    """Run the chosen subcommand; exit status."""
     if args.synth_cmd == "dataset":
         from .dataset import write_shards
         from .generate import SynthConfig
@@ -48,6 +59,17 @@ def main(args: argparse.Namespace) -> int:
 
         out = write_sample_bag(args.out, args.frames, args.seed, args.rate, args.width, args.height,
                                overwrite=True, compress=not args.no_compress)
+        size = sum(p.stat().st_size for p in out.iterdir())
+        print(f"wrote {out} ({args.frames} frames {args.width}x{args.height} at {args.rate:g} Hz, {size / 1e6:.2f} MB)")
+        return 0
+    if args.synth_cmd == "walkthrough":
+        from .walkthrough_bag import write_walkthrough_bag
+
+        if args.frames < 1 or args.rate <= 0 or args.width < 16 or args.height < 16:
+            print("synth walkthrough: --frames >= 1, --rate > 0 and --width/--height >= 16 needed")
+            return 2
+        out = write_walkthrough_bag(args.out, args.frames, args.seed, args.rate, args.width, args.height,
+                                    overwrite=True, compress=not args.no_compress)
         size = sum(p.stat().st_size for p in out.iterdir())
         print(f"wrote {out} ({args.frames} frames {args.width}x{args.height} at {args.rate:g} Hz, {size / 1e6:.2f} MB)")
         return 0
