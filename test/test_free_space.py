@@ -9,7 +9,7 @@ import pytest
 
 from shape_detector.postprocess.free_space import FLAT_TOPPED, CarveParams, carve_free_space
 from shape_detector.frustum import pixel_points
-from shape_detector.proposals.evaluate import chair_parts, placed_box_scene, toy_scene
+from toy_scenes import chair_parts, placed_box_scene, toy_scene
 from shape_detector.types import Cuboid, Object3D
 
 SIZE = np.array([0.53, 1.00, 1.17])

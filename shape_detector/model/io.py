@@ -40,8 +40,11 @@ def plain(obj: Any) -> Any:
     """``obj`` as JSON-like plain types (dict / list / str / int / float / bool / None) and
     tensors, the only things ``torch.load(weights_only=True)`` accepts back: numpy values
     become Python numbers or lists, paths strings, tuples lists."""
-    if obj is None or isinstance(obj, (bool, int, float, str, torch.Tensor)):
+    if obj is None or isinstance(obj, torch.Tensor):
         return obj
+    for base in (bool, int, float, str):  # subclasses (TorchVersion, IntEnum) as their base type
+        if isinstance(obj, base):
+            return base(obj)
     if isinstance(obj, dict):
         return {(k if isinstance(k, (str, int)) else str(k)): plain(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):

@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from ..types import Frame, GTObject
-from .generate import SynthConfig, generate_frame
+from .generate import GENERATOR_VERSION, SynthConfig, generate_frame
 
 INDEX = "index.json"
 
@@ -148,7 +148,8 @@ def write_shards(out_dir: str | Path, num_frames: int, seed: int = 0, frames_per
     cdict = asdict(cfg)
     cdict["noise_params"] = None if cfg.noise_params is None else asdict(cfg.noise_params)
     index = {
-        "format": "shape_detector.synth shards v1", "seed": seed, "num_frames": num_frames,
+        "format": "shape_detector.synth shards v1", "generator_version": GENERATOR_VERSION,
+        "seed": seed, "num_frames": num_frames,
         "frames_per_shard": frames_per_shard, "rgb_format": rgb_format,
         "shards": [f"shard_{k:05d}.npz" for k in range(n_shards)], "config": cdict,
         "seconds": el, "frames_per_second": num_frames / max(el, 1e-9),

@@ -20,6 +20,9 @@ from .layout import Scene, build_scene, rotz
 from .noise import NoiseParams, apply_depth_noise
 
 FRAME_ID = "camera_color_optical_frame"
+#: bump whenever a seed renders a different frame (new layout rules, materials, camera, noise):
+#: data-set indexes record it, and training caches are keyed by it
+GENERATOR_VERSION = 1
 STAMP0_NS = 1_700_000_000_000_000_000
 CLUTTER_OWNER = 1000
 
