@@ -1,5 +1,5 @@
 # shape_detector: two commands on a bare machine (Python 3.11 + pip):
-#   make demo   -> venv + install, then the detector over the bundled sample bag (out/)
+#   make demo   -> venv + install, then a generated walk-through bag -> detections + scene map (out/)
 #   make test   -> venv + install, then the whole pytest suite
 # Both are idempotent: the install runs again only when its inputs change.
 
@@ -26,8 +26,13 @@ $(STAMP): setup.py requirements.txt requirements-ros.txt
 	$(PY) -m pip install -q --no-deps -e .
 	touch $(STAMP)
 
-demo: $(STAMP)
-	$(VENV)/bin/shape-detector demo $(SAMPLE) --out $(OUT)
+# A walk-through of a generated room (camera poses on /tf, /tf_static and /odom), made once.
+WALK ?= $(OUT)/walkthrough
+$(WALK)/metadata.yaml: | $(STAMP)
+	$(VENV)/bin/shape-detector synth walkthrough --out $(WALK) --frames 30 --seed 5
+
+demo: $(STAMP) $(WALK)/metadata.yaml
+	$(VENV)/bin/shape-detector demo $(WALK) --out $(OUT)
 
 test: $(STAMP)
 	$(PY) -m pytest -q test
