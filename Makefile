@@ -12,7 +12,9 @@ SAMPLE ?= bags/sample
 # ROS traffic of anything started from here stays on this host, over shared memory.
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 export ROS_DOMAIN_ID ?= 77
+# (Fast DDS 2.x, in the Jazzy wheels, reads the FASTRTPS name; 3.x, in Kilted, the FASTDDS one)
 export FASTDDS_DEFAULT_PROFILES_FILE ?= $(CURDIR)/shape_detector/config/fastdds_shm.xml
+export FASTRTPS_DEFAULT_PROFILES_FILE ?= $(FASTDDS_DEFAULT_PROFILES_FILE)
 
 .PHONY: demo test install bench sample-bag figures weights evaluate ablation clean
 

@@ -36,6 +36,7 @@ def ros_env(domain_id: int | None = None) -> dict[str, str]:
     env = dict(os.environ)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env.setdefault("FASTDDS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILE))
+    env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", env["FASTDDS_DEFAULT_PROFILES_FILE"])  # Fast DDS 2.x
     if domain_id is not None:
         env["ROS_DOMAIN_ID"] = str(domain_id)
     else:
@@ -138,6 +139,7 @@ class OutputCollector:
                 sys.stderr.write(line)
 
     def wait_for(self, needle: str, timeout: float) -> bool:
+        """True once ``needle`` appeared in the output within ``timeout`` s."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if any(needle in ln for ln in self.lines):
@@ -147,6 +149,7 @@ class OutputCollector:
 
     @property
     def text(self) -> str:
+        """The output so far."""
         return "".join(self.lines)
 
 
@@ -233,7 +236,8 @@ def bench_node(
         params["detector_factory"] = detector_factory
     params.update(node_params or {})
     env = ros_env()
-    os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID", "FASTDDS_DEFAULT_PROFILES_FILE")})
+    os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID", "FASTDDS_DEFAULT_PROFILES_FILE",
+                                            "FASTRTPS_DEFAULT_PROFILES_FILE")})
     proc = start_node(remaps, params, env=env, extra_pythonpath=extra_pythonpath)
     out = OutputCollector(proc, echo=echo)
     ctx = rclpy.context.Context()
@@ -283,6 +287,7 @@ def bench_node(
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``python -m shape_detector.node_bench``: the node benchmark from the command line."""
     p = argparse.ArgumentParser(prog="python -m shape_detector.node_bench", description=__doc__.split("\n\n")[0])
     p.add_argument("bag", nargs="?", default=None)
     p.add_argument("--weights")

@@ -139,7 +139,7 @@ def soak(
     params: dict[str, Any] = {"stats_period": 10.0, **(node_params or {})}
     env = ros_env()
     os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID",
-                                            "FASTDDS_DEFAULT_PROFILES_FILE")})
+                                            "FASTDDS_DEFAULT_PROFILES_FILE", "FASTRTPS_DEFAULT_PROFILES_FILE")})
     frames = _load_frames(bag, rclpy_types())
     proc = start_node({t: f"{prefix}/{t}" for t in ("image", "depth", "camera_info")}, params, env=env)
     out = OutputCollector(proc, echo=echo)

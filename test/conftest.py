@@ -14,7 +14,10 @@ ROOT = Path(__file__).resolve().parents[1]
 # Set before anything imports rclpy; subprocesses inherit them.
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid()).randint(100, 200)))
-os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = str(ROOT / "shape_detector" / "config" / "fastdds_shm.xml")
+# Fast DDS 2.x (Jazzy) reads FASTRTPS_DEFAULT_PROFILES_FILE, 3.x (Kilted) FASTDDS_DEFAULT_PROFILES_FILE
+_PROFILE = str(ROOT / "shape_detector" / "config" / "fastdds_shm.xml")
+os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = _PROFILE
+os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] = _PROFILE
 os.environ.setdefault("RCUTILS_LOGGING_BUFFERED_STREAM", "1")
 
 

@@ -34,7 +34,9 @@ TIMEOUT_S = 15.0
 
 def test_environment_is_loopback_only():
     assert os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    # both names: Fast DDS 2.x (the Jazzy wheels) reads only the FASTRTPS one
     assert os.environ["FASTDDS_DEFAULT_PROFILES_FILE"].endswith("fastdds_shm.xml")
+    assert os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"].endswith("fastdds_shm.xml")
 
 
 @pytest.fixture(scope="module")
