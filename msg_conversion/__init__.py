@@ -26,6 +26,7 @@ from .image import (
 from .markers import objects_to_markers, quaternion_to_rotation, rotation_to_quaternion
 from .msgtypes import MsgTypes, message_type_name, rclpy_types, rosbags_types
 from .scene import grid_to_occupancy, occupancy_to_cells, scene_to_markers
+from .surfaces import surfaces_to_markers
 from .stamps import header_to_ns_frame, make_header, ns_to_duration, ns_to_stamp, seconds_to_duration, stamp_to_ns
 from .vision_msgs_defs import VISION_MSGS_DEFS, register_vision_msgs
 
@@ -62,6 +63,7 @@ __all__ = [
     "rotation_to_quaternion",
     "scale_K",
     "scene_to_markers",
+    "surfaces_to_markers",
     "seconds_to_duration",
     "stamp_to_ns",
 ]

@@ -23,6 +23,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "weights-info": ("shape_detector.training.weights_info", "print a weights file's format, provenance and metrics"),
     "evaluate": ("shape_detector.evaluation.cli", "evaluate weights on a held-out generated set"),
     "bench": ("shape_detector.bench", "benchmarks that print numbers (synth, network, proposals, node)"),
+    "evaluate-ar": ("shape_detector.evaluation.ar_cli",
+                    "score the AR queries (ray casts, collision, paths) on generated walk-throughs"),
     "export": ("shape_detector.export.cli", "export a scene map JSON to .glb / .gltf / .obj for game engines"),
     "config": ("shape_detector.config_docs", "print the settings as a ROS 2 parameters file (--preset) or table"),
     "config-path": ("shape_detector.cli", "print the path of a packaged config file"),

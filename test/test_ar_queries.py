@@ -51,6 +51,11 @@ def test_loader_errors(tmp_path: Path) -> None:
         load_scene({"objects": [{"id": 1}]})
     with pytest.raises(ValueError):
         load_scene(42)
+    with pytest.raises(ValueError, match="objects"):
+        load_scene({"frame_id": "odom"})
+    with pytest.raises(ValueError):  # non-finite numbers are refused, not queried
+        load_scene({"objects": [{"id": 1, "class": "chair", "center": [0, 0, float("nan")], "size": [1, 1, 1],
+                                 "rotation": np.eye(3).tolist()}]})
 
 
 def test_from_objects_shaped_like_scene_objects() -> None:
@@ -62,3 +67,20 @@ def test_from_objects_shaped_like_scene_objects() -> None:
     assert q.collides([0.0, 0.0, 0.7]) and q.grid is None
     with pytest.raises(ValueError):
         q.plan((0, 0), (1, 1))
+
+
+def test_live_scene_map() -> None:
+    scene_pkg = pytest.importorskip("shape_detector.scene")
+    m = scene_pkg.SceneMap.from_json(scene_json(_scene()))
+    q = SceneQueries(m)
+    assert sorted((o.id, o.class_name, len(o.primitives)) for o in q.scene.objects) == [(1, "table", 5), (2, "chair", 2)]
+    hit = q.raycast([1.0, 1.0, 2.0], [0.0, 0.0, -1.0])
+    assert hit is not None and hit.object_id == 1 and abs(hit.distance - 1.25) < 0.02
+    assert q.grid is not None and q.grid.data.size > 0
+
+
+def test_empty_grid_plans_nothing() -> None:
+    from shape_detector.ar import ArGrid
+
+    q = SceneQueries(ArScene([], ArGrid(0.05, np.zeros(2), np.zeros((0, 0), np.int8))))
+    assert q.plan((0.0, 0.0), (1.0, 1.0)) is None

@@ -63,6 +63,7 @@ def test_glb_round_trip(tmp_path: Path) -> None:
     assert extras["table #1 collider 0"]["collider"] == "box"
     np.testing.assert_allclose(sorted(extras["table #1 collider 0"]["size"]), [0.05, 0.6, 1.0], atol=1e-5)
     assert extras["table #1 part 0"] is None
+    assert extras["dresser #3"] == {"class": "dresser", "id": 3, "score": 1.0}
 
 
 def test_no_colliders_and_gltf(tmp_path: Path) -> None:

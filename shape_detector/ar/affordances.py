@@ -87,16 +87,20 @@ def _covered_share(poly: np.ndarray, height: float, others: list[tuple[np.ndarra
 
 
 def surfaces(scene: ArScene | Any, max_tilt_deg: float = 10.0, min_side: float = 0.1, cover_gap: float = 0.05,
-             max_covered: float = 0.5) -> list[Surface]:
+             max_covered: float = 0.5, floor_z: float | None = None) -> list[Surface]:
     """Usable top faces of the scene's primitives (objects' boxes where they have none).
 
     A face is dropped when another box of the same object overlaps the thin slab from its
-    top to ``cover_gap`` (m) above on more than ``max_covered`` of its area, when a side is
-    under ``min_side`` (m), or when no affordance of its class fits its height and size.
-    Sorted by object id, then height.
+    top to ``cover_gap`` (m) above on more than ``max_covered`` of its area, when it lies
+    mostly on a larger face of the object at the same height, when a side is under
+    ``min_side`` (m), or when no affordance of its class fits its height and size. Heights
+    count from ``floor_z`` (default: the scene's, see :class:`ArScene`). Sorted by object id,
+    then height.
     """
     scene = load_scene(scene)
     b = scene.boxes
+    if floor_z is None:
+        floor_z = float(scene.floor_z or 0.0)
     cos_tilt = float(np.cos(np.radians(max_tilt_deg)))
     out: list[Surface] = []
     by_obj: dict[int, list[int]] = {}
@@ -117,12 +121,36 @@ def surfaces(scene: ArScene | Any, max_tilt_deg: float = 10.0, min_side: float =
             others = [(b.centers[j], b.half[j], b.rot[j]) for j in idx if j != i]
             if others and _covered_share(poly, height, others, cover_gap) > max_covered:
                 continue
-            above = height - scene.floor_z
+            above = height - floor_z
             fits = tuple(a for a in uses if AFFORDANCE_LIMITS[a][0] <= above <= AFFORDANCE_LIMITS[a][1]
                          and sides.min() >= AFFORDANCE_LIMITS[a][2])
             if not fits:
                 continue
             out.append(Surface(oid, obj.class_name, height, poly, fits[0], fits, int(b.prim_index[i]),
                                float(sides[0] * sides[1])))
+    out = _drop_level_duplicates(out)
     out.sort(key=lambda s: (s.object_id, s.height))
     return out
+
+
+def _inside_convex(pts: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """(N,) bool: points (N,2) inside the counter-clockwise convex polygon (K,2)."""
+    e = np.roll(poly, -1, axis=0) - poly
+    rel = pts[:, None, :] - poly[None]
+    return np.all(e[None, :, 0] * rel[..., 1] - e[None, :, 1] * rel[..., 0] >= -1e-9, axis=1)
+
+
+def _drop_level_duplicates(found: list[Surface], dz: float = 0.02, share: float = 0.5) -> list[Surface]:
+    """Drop a face lying mostly (> ``share``) on a larger face of the same object within ``dz``
+    m of its height (a pedestal level with the desk top above it is one surface)."""
+    s = (np.arange(7) + 0.5) / 7
+    u, v = (a.reshape(-1, 1) for a in np.meshgrid(s, s))
+    keep = []
+    for f in found:
+        p0, p1, p3 = f.polygon[0], f.polygon[1], f.polygon[3]
+        pts = p0 + u * (p1 - p0) + v * (p3 - p0)
+        bigger = [g for g in found if g is not f and g.object_id == f.object_id and abs(g.height - f.height) <= dz
+                  and (g.area, id(g)) > (f.area, id(f))]
+        if not any(_inside_convex(pts, g.polygon).mean() > share for g in bigger):
+            keep.append(f)
+    return keep

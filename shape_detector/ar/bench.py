@@ -2,7 +2,7 @@
 
 Prints the median time of 10,000 ``collides`` queries (one batch, points within 30 cm of
 furniture) and of 1,000 ray casts (one batch) against a 20-object scene, and of a plan across
-a 10 m x 10 m grid at 5 cm (graph build included, and on a cached graph).
+a 10 m x 10 m grid at 5 cm (graph build included, and on a cached graph); single queries too.
 """
 
 from __future__ import annotations
@@ -79,6 +79,7 @@ def run(repeats: int = 20, seed: int = 0) -> dict[str, float]:
         "collides_10k_ms": _median_ms(lambda: collision.collides_many(scene, pts, 0.1), repeats),
         "collides_single_us": 1e3 * _median_ms(lambda: collision.collides(scene, pts[0], 0.1), repeats * 10),
         "raycast_1k_ms": _median_ms(lambda: raycast_many(scene, origins, dirs), repeats),
+        "raycast_single_us": 1e3 * _median_ms(lambda: q.raycast(origins[0], dirs[0]), repeats * 10),
         "plan_10m_cold_ms": _median_ms(lambda: planning.plan(scene, start, goal, 0.2), max(3, repeats // 4)),
         "plan_10m_cached_ms": _median_ms(lambda: q.plan(start, goal, 0.2), repeats),
     }

@@ -3,7 +3,9 @@
 The node's ``~/get_plan`` service calls :func:`plan_request` with the request (duck-typed:
 ``start``/``goal`` as ``geometry_msgs/PoseStamped``, ``tolerance`` in metres) and fills the
 response's ``plan`` with :func:`path_message`. Poses are in the map's world frame (z up,
-metres); a request in another frame is refused (no TF lookup here).
+metres); a request in another frame is refused (no TF lookup here). A live map changes
+every frame: build ``SceneQueries(scene_map)`` per request (tens of milliseconds with the
+graph), not once.
 """
 
 from __future__ import annotations

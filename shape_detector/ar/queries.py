@@ -27,7 +27,8 @@ class SceneQueries:
     """Collision, ray casts, paths and surfaces on one scene (see module doc)."""
 
     def __init__(self, scene: Any) -> None:
-        """``scene``: a ``SceneMap``, an ``ArScene``, scene objects, the JSON dict or its path."""
+        """``scene``: a ``SceneMap``, an ``ArScene``, scene objects, the JSON dict or its path; a
+        live ``SceneMap`` is copied as it is now (make new queries after it updates)."""
         self.scene = load_scene(scene)
         self._graphs: dict[tuple[float, str], planning.CellGraph] = {}
         self._surfaces: list[Surface] | None = None

@@ -168,18 +168,23 @@ def objects_from_json(d: dict[str, Any]) -> list[ArObject]:
 
 @dataclass
 class ArScene:
-    """Objects, their boxes and the floor grid (None: no grid, floor at ``floor_z``)."""
+    """Objects, their boxes and the floor grid (None: no grid). ``floor_z`` (world z of the
+    floor) defaults to the grid's, else to the lowest box bottom (furniture stands on the
+    floor), else 0."""
 
     objects: list[ArObject]
     grid: ArGrid | None = None
     frame_id: str = "odom"
-    floor_z: float = 0.0
+    floor_z: float | None = None
     boxes: BoxSet = field(init=False)
 
     def __post_init__(self) -> None:
         self.boxes = build_boxes(self.objects)
-        if self.grid is not None:
-            self.floor_z = float(self.grid.floor_z)
+        if self.floor_z is None:
+            if self.grid is not None:
+                self.floor_z = float(self.grid.floor_z)
+            else:
+                self.floor_z = float(self.boxes.lo[:, 2].min()) if len(self.boxes) else 0.0
 
     def object(self, object_id: int) -> ArObject | None:
         """The object with this track id, or None."""
@@ -210,6 +215,8 @@ def load_scene(source: Any) -> ArScene:
         except json.JSONDecodeError as e:
             raise ValueError(f"scene file {path} is not valid JSON: {e}") from None
     if isinstance(source, dict):
+        if not isinstance(source.get("objects"), list):
+            raise ValueError("not a scene map JSON document (needs an 'objects' list)")
         try:
             grid = grid_from_json(source["grid"]) if source.get("grid") else None
             return ArScene(objects_from_json(source), grid, str(source.get("frame_id", "odom")))

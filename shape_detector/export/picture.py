@@ -116,7 +116,8 @@ def render_picture(source: Any, px_per_m: float = 80.0) -> np.ndarray:
     side = _side_view(scene, lo, hi, px_per_m)
     pad = np.full((top.shape[0], 20, 3), _BG, np.uint8)
     side_full = np.full((top.shape[0], side.shape[1], 3), _BG, np.uint8)
-    side_full[-min(side.shape[0], top.shape[0]) :] = side[-min(side.shape[0], top.shape[0]) :]
+    rows = min(side.shape[0], top.shape[0])
+    side_full[:rows] = side[-rows:]
     out = np.concatenate([np.full((44, top.shape[1] + 20 + side.shape[1], 3), _BG, np.uint8),
                           np.concatenate([top, pad, side_full], axis=1)], axis=0)
     font, black = cv2.FONT_HERSHEY_SIMPLEX, (0, 0, 0)

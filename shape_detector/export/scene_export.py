@@ -5,7 +5,8 @@ the object's box pose, with one child ``"<class> #<id> part <k>"`` per primitive
 of the primitive's size at its pose relative to the object), and a sibling node
 ``"<class> #<id> collider"`` with children ``"... collider <k>"``: the same boxes again, with
 glTF ``extras`` ``{"collider": "box", "size": [x, y, z]}`` so an importer script (Unity,
-Unreal, Godot, Blender) can turn them into box colliders and hide them. One PBR material per
+Unreal, Godot, Blender) can turn them into box colliders and hide them; object nodes carry
+``{"class", "id", "score"}``. One PBR material per
 class (the class colour). The map's world frame (z up, metres) becomes glTF's y-up frame
 (x stays, y = world z, z = -world y). OBJ has no hierarchy or '#' in names: it gets one
 group per box named ``<class>_<id>_part_<k>`` / ``<class>_<id>_collider_<k>`` (y-up too)
@@ -91,20 +92,27 @@ def build_trimesh_scene(source: Any, colliders: bool = True, y_up: bool = True) 
     return out
 
 
-def _mark_colliders(tree: dict) -> None:
-    """glTF tree post-processor: ``extras`` on collider boxes (shape and full size, metres)."""
-    meshes = tree.get("meshes", [])
-    accessors = tree.get("accessors", [])
-    for node in tree.get("nodes", []):
-        name = node.get("name", "")
-        if " collider " not in name or "mesh" not in node:
-            continue
-        extras: dict[str, Any] = {"collider": "box"}
-        prim = meshes[node["mesh"]]["primitives"][0]
-        acc = accessors[prim["attributes"]["POSITION"]]
-        if "min" in acc and "max" in acc:
-            extras["size"] = [float(b - a) for a, b in zip(acc["min"], acc["max"])]
-        node["extras"] = extras
+def _extras(objects: dict[str, ArObject]) -> Any:
+    """A glTF tree post-processor adding ``extras``: ``{"class", "id", "score"}`` on object nodes
+    and ``{"collider": "box", "size": [x, y, z]}`` (full size, metres) on collider boxes."""
+
+    def post(tree: dict) -> None:
+        meshes = tree.get("meshes", [])
+        accessors = tree.get("accessors", [])
+        for node in tree.get("nodes", []):
+            name = node.get("name", "")
+            if name in objects:
+                o = objects[name]
+                node["extras"] = {"class": o.class_name, "id": int(o.id), "score": round(float(o.score), 4)}
+            if " collider " not in name or "mesh" not in node:
+                continue
+            extras: dict[str, Any] = {"collider": "box"}
+            acc = accessors[meshes[node["mesh"]]["primitives"][0]["attributes"]["POSITION"]]
+            if "min" in acc and "max" in acc:
+                extras["size"] = [float(b - a) for a, b in zip(acc["min"], acc["max"])]
+            node["extras"] = extras
+
+    return post
 
 
 def _obj_text(ts: trimesh.Scene, mtl_name: str) -> tuple[str, dict[str, bytes]]:
@@ -126,15 +134,17 @@ def export_scene(source: Any, path: str | Path, colliders: bool = True) -> list[
     suffix = path.suffix.lower()
     if suffix not in FORMATS:
         raise ValueError(f"unsupported export format {suffix!r}; use one of {FORMATS}")
-    ts = build_trimesh_scene(source, colliders=colliders)
+    scene = load_scene(source)
+    ts = build_trimesh_scene(scene, colliders=colliders)
+    post = _extras({object_name(o): o for o in scene.objects})
     path.parent.mkdir(parents=True, exist_ok=True)
     if not ts.geometry:
         raise ValueError("the scene has no objects to export")
     if suffix == ".glb":
-        path.write_bytes(trimesh.exchange.gltf.export_glb(ts, tree_postprocessor=_mark_colliders))
+        path.write_bytes(trimesh.exchange.gltf.export_glb(ts, tree_postprocessor=post))
         return [path]
     if suffix == ".gltf":
-        files = trimesh.exchange.gltf.export_gltf(ts, tree_postprocessor=_mark_colliders, embed_buffers=True)
+        files = trimesh.exchange.gltf.export_gltf(ts, tree_postprocessor=post, embed_buffers=True)
         tree = json.loads(files["model.gltf"])
         path.write_text(json.dumps(tree))
         return [path]

@@ -1,0 +1,76 @@
+"""``shape-detector evaluate-ar``: the AR queries scored on generated walk-throughs.
+
+Metrics and acceptance thresholds: :mod:`shape_detector.evaluation.ar_eval`. Walk-through
+seeds draw from their own random streams (never training data).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+#: metric -> acceptance threshold (issue #27)
+THRESHOLDS = {"ray_within_5cm": 0.90, "collide_precision": 0.90, "collide_recall": 0.90, "plan_found": 0.95,
+              "plan_clear": 1.0}
+
+
+def _nanmean(values: list[float]) -> float:
+    """Mean of the finite values (NaN: a metric without samples in every sequence)."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if v.size else float("nan")
+
+
+def configure_parser(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``shape-detector evaluate-ar``."""
+    p.add_argument("--seeds", type=int, nargs="+", default=[101, 102, 103], help="walk-through seeds")
+    p.add_argument("--frames", type=int, default=40, help="frames per walk-through")
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--height", type=int, default=480)
+    p.add_argument("--gt-map", action="store_true", help="query the true scene instead of the detector's map "
+                   "(checks the evaluation, not the map)")
+    p.add_argument("--rays", type=int, default=2000, help="ray casts per walk-through")
+    p.add_argument("--points", type=int, default=2000, help="collision points per walk-through")
+    p.add_argument("--pairs", type=int, default=40, help="start / goal pairs per walk-through")
+    p.add_argument("--radius", type=float, default=0.1, help="collision sphere radius (m)")
+    p.add_argument("--agent-radius", type=float, default=0.2, help="planning agent radius (m)")
+    p.add_argument("--json", default=None, help="also write the per-sequence and mean metrics here")
+    p.add_argument("--save-maps", default=None, help="directory for the detector's maps (map_<seed>.json)")
+
+
+def main(args: argparse.Namespace) -> int:
+    """Evaluate; prints per-sequence lines and the means with pass / FAIL per threshold."""
+    from .ar_eval import evaluate_walkthrough
+
+    if args.frames < 1 or not args.seeds:
+        print("evaluate-ar: need at least one seed and one frame", file=sys.stderr)
+        return 2
+    rows = []
+    if args.save_maps:
+        Path(args.save_maps).mkdir(parents=True, exist_ok=True)
+    for seed in args.seeds:
+        t0 = time.perf_counter()
+        save = str(Path(args.save_maps) / f"map_{seed}.json") if args.save_maps and not args.gt_map else None
+        r = evaluate_walkthrough(seed, args.frames, args.width, args.height, use_gt_map=args.gt_map,
+                                 n_rays=args.rays, n_points=args.points, n_pairs=args.pairs, radius=args.radius,
+                                 agent_radius=args.agent_radius, save_map=save)
+        rows.append(r)
+        print(f"seed {seed} ({time.perf_counter() - t0:.0f} s): " + ", ".join(f"{k}={v:.3f}" for k, v in r.items()))
+    mean = {k: _nanmean([r[k] for r in rows]) for k in rows[0]}
+    print(f"map: {'true scene (--gt-map)' if args.gt_map else 'detector + SceneMap'}, {len(rows)} walk-throughs")
+    for k, thr in THRESHOLDS.items():
+        print(f"  {k:>30}: {mean[k]:.3f}  (>= {thr:.2f}: {'pass' if mean[k] >= thr else 'FAIL'})")
+    for k in ("ray_object_within_5cm", "ray_floor_within_5cm", "ray_median_err_cm", "plan_min_clearance_cm",
+              "plan_found_interior", "plan_clear_interior", "plan_min_clearance_cm_interior", "objects_true",
+              "objects_map"):
+        print(f"  {k:>30}: {mean[k]:.3f}")
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as f:
+            json.dump({"seeds": list(args.seeds), "per_sequence": rows, "mean": mean, "gt_map": bool(args.gt_map)}, f,
+                      indent=1)
+    return 0
