@@ -35,7 +35,7 @@ def _objects(objs: list[Any]) -> list[dict[str, Any]]:
 
 def frames() -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
     """(name, rgb, depth, K) of every golden frame: sample bag first, then validation frames."""
-    from shape_detector.bag_io import iter_frames
+    from shape_detector.bags.reader import iter_frames
     from shape_detector.synth.dataset import frame_seed
     from shape_detector.synth.generate import generate_frame
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from shape_detector.evaluation.iou import box2d_iou
+from shape_detector.box_iou import box2d_iou
 from shape_detector.geometry import points_in_box, rot_z
 from shape_detector.model.config import ModelConfig
 from shape_detector.model.io import load_checkpoint, load_weights

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..classes import CLASS_TO_ID, NUM_CLASSES
-from ..evaluation.iou import box2d_iou, box3d_iou
+from ..box_iou import box2d_iou, box3d_iou
 from ..model.classifier import frame_inputs
 from ..types import Frame
 

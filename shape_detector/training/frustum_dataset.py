@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from ..classes import CLASS_TO_ID, NUM_CLASSES
-from ..evaluation.iou import box2d_iou
+from ..box_iou import box2d_iou
 from ..frustum import backproject, clip_box, extract_frustum
 from ..geometry import rotation_to_heading, upright_rotation, wrap_angle
 from ..model.primitives import sample_parts_surface_np

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..evaluation.iou import box3d_iou
+from ..box_iou import box3d_iou
 from ..geometry import rot_z
 from ..model.losses import LossWeights, compute_losses, parse_tasks
 from ..model.network import FrustumShapeNet
