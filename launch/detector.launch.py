@@ -8,6 +8,9 @@
 The RealSense driver must publish depth aligned to colour (``align_depth.enable:=true``).
 With ``up_source:=imu`` (in the params file) remap ``imu`` to the camera's IMU topic
 (``enable_gyro/enable_accel``, ``unite_imu_method``) and set ``imu_to_camera``.
+The scene map (``~/scene``, ``~/map``, ``~/surfaces``, ``~/get_plan``) takes the camera pose
+from ``/tf`` (where tf2_ros is installed), the ``odom`` or the ``pose`` topic (remap them), as
+``pose_source`` and ``world_frame`` in the params file say.
 """
 
 from launch import LaunchDescription
@@ -19,6 +22,7 @@ from launch_ros.substitutions import FindPackageShare
 
 
 def generate_launch_description() -> LaunchDescription:
+    """The detector node with its parameters file and the usual camera topic remaps."""
     args = [
         DeclareLaunchArgument(
             "params_file",
@@ -41,6 +45,10 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument(
             "detections2d", default_value="detections2d", description="Detection2DArray topic (proposal_source=external)"
         ),
+        DeclareLaunchArgument("odom", default_value="odom", description="nav_msgs/Odometry camera pose topic "
+                              "(pose_source odom or auto)"),
+        DeclareLaunchArgument("pose", default_value="pose", description="geometry_msgs/PoseStamped camera pose topic "
+                              "(pose_source pose or auto)"),
         DeclareLaunchArgument("log_level", default_value="info", description="ROS log level"),
     ]
     node = Node(
@@ -60,6 +68,8 @@ def generate_launch_description() -> LaunchDescription:
             ("camera_info", LaunchConfiguration("camera_info")),
             ("imu", LaunchConfiguration("imu")),
             ("detections2d", LaunchConfiguration("detections2d")),
+            ("odom", LaunchConfiguration("odom")),
+            ("pose", LaunchConfiguration("pose")),
         ],
         arguments=["--ros-args", "--log-level", LaunchConfiguration("log_level")],
     )

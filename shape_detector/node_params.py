@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from .detector_config import DetectorConfig, detector_specs, preset
 from .settings import Spec, check, setting, specs
@@ -48,6 +49,24 @@ class NodeConfig:
                                     "transport (qos reliable avoids it)", range=(1, 2**40), node="dynamic")
     detector_factory: str = setting("", "'package.module:callable' building the detector from ShapeDetector's "
                                     "keyword arguments; empty = ShapeDetector")
+    publish_scene: bool = setting(True, "keep a scene map: publish ~/scene, ~/map and ~/surfaces each processed "
+                                  "frame and serve ~/get_plan")
+    world_frame: str = setting("odom", "fixed world frame of the scene map (z up)")
+    pose_source: str = setting("auto", "camera pose: tf (/tf, /tf_static), odom (odom_topic), pose (pose_topic), "
+                               "none (static camera) or auto (any of them that delivers; static camera until one "
+                               "does)", choices=("auto", "tf", "odom", "pose", "none"))
+    odom_topic: str = setting("odom", "nav_msgs/Odometry topic giving the camera pose (child_frame_id: a frame "
+                              "linked to the camera by TF, the camera frame, or empty = the camera)")
+    pose_topic: str = setting("pose", "geometry_msgs/PoseStamped topic giving the camera pose")
+    pose_timeout: float = setting(0.1, "longest wait for a camera pose at a frame's stamp when the newest pose "
+                                  "is older (odom_topic, pose_topic, /tf without tf2_ros), s", range=(0.0, 5.0))
+    grid_resolution: float = setting(0.05, "navigation grid cell size (~/map), m", range=(0.005, 1.0))
+    inflation_radius: float = setting(0.2, "agent radius: the grid is inflated by it for ~/get_plan, m",
+                                      range=(0.0, 5.0))
+    scene_confirm_observations: int = setting(3, "a tracked object is published once detected in this many "
+                                              "frames", range=(1, 1000))
+    scene_delete_misses: int = setting(3, "a tracked object is removed after this many frames that see its space "
+                                       "empty", range=(1, 1000))
 
 
 #: name -> Spec of every node parameter: the detector's settings (realtime preset), then the node's own
@@ -59,6 +78,19 @@ REBUILD = tuple(k for k, v in PARAMETERS.items() if v.node == "rebuild")
 #: detector settings the node changes on a built detector (``configure``, or the attribute
 #: of a custom detector that has it)
 DETECTOR_ATTRS = tuple(k for k in detector_specs() if PARAMETERS[k].node == "dynamic")
+
+
+def descriptor_fields(spec: Spec) -> dict[str, Any]:
+    """The fields of a ROS ParameterDescriptor for ``spec``; ranges as ``(lo, hi)`` under
+    ``floating_point_range`` or ``integer_range`` (the node turns them into messages)."""
+    out: dict[str, Any] = dict(description=spec.doc, read_only=spec.node == "read_only",
+                               dynamic_typing=spec.length is not None)
+    if spec.range is not None:
+        key = "floating_point_range" if spec.kind is float else "integer_range"
+        out[key] = (spec.range[0], spec.range[1])
+    if spec.choices:
+        out["additional_constraints"] = "one of: " + ", ".join(spec.choices)
+    return out
 
 
 def validate(name: str, value: Any) -> str | None:

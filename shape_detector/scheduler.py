@@ -9,7 +9,8 @@ output stays in input order and a frame waits for at most one other.
 
 The host (the node) provides: ``p`` (parameter values), ``detector``, ``stats``
 (:class:`~shape_detector.node_stats.NodeStats`), ``warn(kind, text, period=, level=)``,
-``publish(objects, stamp_ns, frame_id)``, ``now_ns()`` (its clock),
+``publish(objects, stamp_ns, frame_id, frame, up)`` (``frame``: the checked input frame, None
+when it was skipped; ``up``: gravity up in the camera frame or None), ``now_ns()`` (its clock),
 ``camera_info()`` (latest or None), ``info_event`` (set once one arrived),
 ``build_detector()`` and ``topic(name)`` (resolved topic name).
 """
@@ -54,6 +55,7 @@ class Job:
     detector: Any = None  # the detector that prepared the frame finishes it
     prepared: Any = None  # its prepare() output; None: nothing left to run
     objects: list = field(default_factory=list)
+    frame: Any = None  # the checked input (PreparedFrame); None: skipped
     detect_ms: float | None = None  # detector time so far; None: the detector did not succeed
 
 
@@ -168,7 +170,7 @@ class FrameScheduler:
         job = Job(fs, int(header_stamp_ns(fs.image) or 0), str(getattr(fs.image.header, "frame_id", "") or ""))
         if not job.frame_id:
             self.host.warn("frame_id", "colour image has an empty header.frame_id: markers will have no frame", 60.0)
-        pf = self._frame(fs)
+        pf = job.frame = self._frame(fs)
         if pf is None:
             return job
         det = self.host.detector
@@ -211,7 +213,8 @@ class FrameScheduler:
             job.prepared = None
         if not self._running:  # stopping: the publishers may be gone already
             return
-        self.host.publish(job.objects, job.stamp, job.frame_id)
+        up = job.fs.up if job.fs.up is not None else getattr(job.detector or self.host.detector, "last_up", None)
+        self.host.publish(job.objects, job.stamp, job.frame_id, job.frame, up)
         stamp_ms = (self.host.now_ns() - job.stamp) / 1e6 if job.stamp > 0 else None
         self.host.stats.frame_done(len(job.objects), stamp_ms, (time.monotonic() - job.fs.synced_at) * 1e3,
                                    job.detect_ms)

@@ -102,6 +102,7 @@ class ApproximateTimeSynchronizer:
 
     @property
     def slop(self) -> float:
+        """The slop, seconds."""
         return self.slop_ns / _NS
 
     def register_callback(self, callback: Callable[..., Any]) -> None:
@@ -110,6 +111,7 @@ class ApproximateTimeSynchronizer:
         self._callbacks.append(callback)
 
     def clear(self) -> None:
+        """Drop every queued message."""
         with self._lock:
             for q in self._queues:
                 q.clear()
@@ -221,6 +223,7 @@ class LatestMailbox(Generic[T]):
             return self._cond.wait_for(lambda: not self._has_item or self._closed, timeout=timeout)
 
     def pending(self) -> bool:
+        """True while an item waits to be taken."""
         with self._cond:
             return self._has_item
 
@@ -232,6 +235,7 @@ class LatestMailbox(Generic[T]):
 
     @property
     def closed(self) -> bool:
+        """True once :meth:`close` was called."""
         return self._closed
 
 

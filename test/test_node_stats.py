@@ -53,7 +53,7 @@ def test_mixed_restamped_and_original_stamps_give_sane_percentiles():
         restamped = k % 2 == 0
         stamp_ms = now_ms - 80.0 if restamped else now_ms - 96_235_567_023.0  # the bag's original time
         st.frame_done(1, now_ms - stamp_ms, 85.0, 40.0)
-    for k in range(20):  # a clock that jumped back: stamps from the future
+    for _ in range(20):  # a clock that jumped back: stamps from the future
         st.frame_done(1, -5_000.0, 85.0, 40.0)
     s = st.snapshot()
     assert s["processed"] == 220 and s["implausible_stamps"] == 120

@@ -177,7 +177,8 @@ def test_tiny_recipe_end_to_end_is_reproducible_and_resumable(tmp_path, monkeypa
     """The tiny recipe (a fresh network, a phase grown from it with the rest frozen, the
     proposal classifier on the grown network's candidates) on freshly generated data: every
     phase writes weights with provenance; a second run from the same seeds (data generated
-    again elsewhere) gives the same weights; running a finished recipe again trains nothing."""
+    again elsewhere) gives the same weights, and so does one interrupted and resumed; running a
+    finished recipe again trains nothing; a changed phase retrains itself and what follows."""
     from shape_detector.training.runner import run_recipe
 
     monkeypatch.setenv("SHAPE_DETECTOR_CACHE", str(tmp_path / "graph_cache"))
@@ -222,6 +223,30 @@ def test_tiny_recipe_end_to_end_is_reproducible_and_resumable(tmp_path, monkeypa
     for n in phases:
         a, b = _state(out1 / n / files[n]), _state(out2 / n / files[n])
         assert set(a) == set(b)
+        for k in a:
+            torch.testing.assert_close(b[k].float(), a[k].float(), atol=1e-6, rtol=1e-5, msg=f"{n}: {k}")
+
+    # a phase interrupted after its first epoch resumes from its checkpoint and ends where an
+    # uninterrupted run does
+    from shape_detector.training import train as train_mod
+    from shape_detector.training.runner import Stopped
+
+    real_train = train_mod.train
+
+    def one_epoch_then_stop(*args, **kwargs):
+        final = real_train(*args, **{**kwargs, "stop_after_epochs": 1})
+        return {**final, "stopped_early": True}
+
+    out3 = tmp_path / "run3"
+    monkeypatch.setattr(train_mod, "train", one_epoch_then_stop)
+    with pytest.raises(Stopped):
+        run_recipe(r, out3, tmp_path / "data2", say=lambda s: None)
+    monkeypatch.setattr(train_mod, "train", real_train)
+    said = []
+    run_recipe(r, out3, tmp_path / "data2", say=said.append)
+    assert any(s.startswith(f"phase {phases[0]}: resuming") for s in said), said
+    for n in phases:
+        a, b = _state(out1 / n / files[n]), _state(out3 / n / files[n])
         for k in a:
             torch.testing.assert_close(b[k].float(), a[k].float(), atol=1e-6, rtol=1e-5, msg=f"{n}: {k}")
 

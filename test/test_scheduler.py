@@ -55,7 +55,7 @@ class Host:
     def warn(self, kind, text, period=5.0, level="warning", key=None):
         self.warnings.append(text)
 
-    def publish(self, objects, stamp, frame_id):
+    def publish(self, objects, stamp, frame_id, frame=None, up=None):
         self.published.append(stamp)
 
     def now_ns(self):
