@@ -222,7 +222,8 @@ def bench_node(
     stamp->markers latency p50/p95 (ms)."""
     import rclpy
 
-    from .bag_io import open_bag, select_topics
+    from .bags.source import open_bag
+    from .bags.topics import select_topics
     from .replay import play_bag
 
     bag = Path(bag) if bag else DEFAULT_BAG

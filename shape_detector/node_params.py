@@ -129,7 +129,7 @@ def build_detector(p: dict[str, Any], external: bool, factory: Callable[..., Any
     ``detector_factory`` parameter, else ShapeDetector), warmed up; ``info``/``warning``
     log a line."""
     from .detector import ShapeDetector
-    from .replay import load_factory
+    from .bags.detector_factory import factory_kwargs, load_factory
 
     config = detector_config(p, external)
     if factory is None and p["detector_factory"]:
@@ -138,7 +138,7 @@ def build_detector(p: dict[str, Any], external: bool, factory: Callable[..., Any
     if factory is None:
         det = ShapeDetector(config)
     else:  # custom factories take ShapeDetector's keyword arguments; dynamic settings follow as attributes
-        det = factory(**_factory_kwargs(config))
+        det = factory(**factory_kwargs(config))
         for name in DETECTOR_ATTRS:
             apply_to_detector(det, name, p[name])
     if hasattr(det, "warm_up"):  # first-call costs now, not on the first camera frame
@@ -149,15 +149,3 @@ def build_detector(p: dict[str, Any], external: bool, factory: Callable[..., Any
     info(f"detector {type(det).__name__} ready in {time.perf_counter() - t:.2f} s "
          f"(weights={config.weights or 'default'}, device={config.device})")
     return det
-
-
-def _factory_kwargs(config: DetectorConfig) -> dict[str, Any]:
-    """The keyword arguments a custom detector factory gets: the settings it is likely to
-    take (those that decide what it loads and how much it does)."""
-    keys = ("weights", "device", "score_threshold", "max_objects", "workers", "precision", "mirror_tta")
-    kw = {k: getattr(config, k) for k in keys}
-    kw["weights"] = config.weights or None
-    kw["proposals"] = "none" if config.proposal_source == "external" else config.proposal_source
-    if config.classifier:
-        kw["classifier"] = False if config.classifier == "none" else config.classifier
-    return kw

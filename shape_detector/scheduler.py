@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from .bag_io import FrameError, prepare_frame
+from .frame_prep import FrameError, prepare_frame
 from .sync import LatestMailbox, header_stamp_ns
 
 #: longest a thread is waited for at shutdown, seconds: a detector stuck in a frame must

@@ -49,7 +49,7 @@ def _load_frames(bag: Path, types: Any, limit: int = 20) -> list[tuple[Any, Any,
     """Up to ``limit`` (image, depth, camera_info) rclpy messages built from ``bag``."""
     from msg_conversion import K_to_camera_info, depth_to_image, numpy_to_image
 
-    from .bag_io import BagFrameReader
+    from .bags.reader import BagFrameReader
 
     out = []
     with BagFrameReader(bag, slop=0.02, queue_size=10) as reader:

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from shape_detector.bag_io import BagReadError, write_rgbd_bag
+from shape_detector.bags.source import BagReadError
+from shape_detector.synth.bag import write_rgbd_bag
 from shape_detector.node_params import PARAMETERS
 from shape_detector.node_stats import stats_line
 from shape_detector.replay import replay_bag

@@ -14,7 +14,8 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from shape_detector.bag_io import BagFrameReader, write_rgbd_bag  # noqa: E402
+from shape_detector.bags.reader import BagFrameReader  # noqa: E402
+from shape_detector.synth.bag import write_rgbd_bag  # noqa: E402
 from shape_detector.node_bench import MarkerListener, OutputCollector, node_command, start_node, stop_node  # noqa: E402
 from shape_detector.replay import play_bag  # noqa: E402
 from shape_detector.types import Object3D  # noqa: E402
