@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -24,23 +25,33 @@ TARGETS = ("synth", "network", "proposals", "pipeline", "node")
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
+    """Options of ``shape-detector bench``."""
     p.add_argument("target", choices=TARGETS + ("all", "soak"), help="what to time")
     p.add_argument("--minutes", type=float, default=10.0, help="soak: minutes under overload")
     p.add_argument("--rate-factor", type=float, default=2.0,
                    help="soak: frames offered per second as a multiple of what the node processes")
     p.add_argument("--frames", type=int, default=20, help="frames to time (synth, proposals, pipeline)")
-    p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1, as the detector)")
-    p.add_argument("--workers", type=int, default=2, help="threads the network splits a frame's frustums over (default 2, as the detector)")
-    p.add_argument("--max-objects", type=int, default=25, help="pipeline: frustums per frame cap (default 25, as the detector)")
-    p.add_argument("--precision", default="fp32", choices=PRECISIONS,
-                   help="network arithmetic (bf16: faster on CPUs with AMX / AVX512-BF16; auto: bf16 for 4 or "
-                        "more frustums where the CPU has AMX)")
+    p.add_argument("--data", default=None,
+                   help="pipeline: a synthetic shard directory to take the frames from (default: generated)")
+    p.add_argument("--threads", type=int, default=None,
+                   help="network intra-op threads (default: the realtime preset's num_threads)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="threads the network splits a frame's frustums over (default: the realtime preset's)")
+    p.add_argument("--max-objects", type=int, default=None,
+                   help="pipeline: frustums per frame cap (default: the realtime preset's)")
+    p.add_argument("--score-threshold", type=float, default=None,
+                   help="pipeline: published score threshold (default: the realtime preset's)")
+    p.add_argument("--precision", default=None, choices=PRECISIONS,
+                   help="network arithmetic (default: the realtime preset's; bf16: faster on CPUs with AMX / "
+                        "AVX512-BF16)")
     p.add_argument("--backend", default="auto", choices=("auto", "onnxruntime", "torch"),
                    help="network, pipeline: inference runtime (auto: onnxruntime when installed)")
     p.add_argument("--weights", default=None, help="weights for network/pipeline/node (default: packaged)")
     p.add_argument("--no-classifier", action="store_true", help="pipeline: without the proposal classifier")
     p.add_argument("--no-refine", action="store_true", help="pipeline: without the class-given second pass")
     p.add_argument("--no-free-space", action="store_true", help="pipeline: without free-space carving")
+    p.add_argument("--no-peer", action="store_true",
+                   help="pipeline: skip the F-PointNet v1 reference forward (it imports torch)")
     p.add_argument("--no-trace", action="store_true",
                    help="network, pipeline: the eager forward instead of the TorchScript graphs")
     p.add_argument("--pipeline-split", default="auto", choices=("auto", "prepare", "network"),
@@ -49,47 +60,90 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", default=None, help="also write the results here")
 
 
+def given_boxes(frame, count: int = 10, seed: int = 0) -> list[tuple]:
+    """``count`` given 2D boxes with classes for ``frame``: its GT boxes, then copies of them
+    with each edge moved by up to 8 px (a detector's boxes around the same objects)."""
+    base = [(*o.box2d, o.class_name) for o in frame.objects]
+    if not base:
+        return []
+    rng = np.random.default_rng(seed)
+    out = list(base[:count])
+    while len(out) < count:
+        x1, y1, x2, y2, c = base[len(out) % len(base)]
+        d = rng.uniform(-8.0, 8.0, 4)
+        out.append((x1 + d[0], y1 + d[1], x2 + d[2], y2 + d[3], c))
+    return out
+
+
+def _pipeline_frames(frames: int, data: str | None) -> list:
+    """``frames`` VGA frames: the first of a shard directory, else generated (seeds 10000+)."""
+    if data:
+        import itertools
+
+        from .synth.dataset import iter_frames
+
+        return list(itertools.islice(iter_frames(data), max(1, frames)))
+    from .synth.generate import generate_frame
+
+    return [generate_frame(10_000 + i) for i in range(max(1, frames))]
+
+
 def bench_pipeline(
     frames: int = 20,
     weights: str | None = None,
     threads: int | None = None,
-    workers: int = 2,
-    precision: str = "fp32",
-    max_objects: int = 25,
+    workers: int | None = None,
+    precision: str | None = None,
+    max_objects: int | None = None,
     classifier: bool = True,
     refine: bool = True,
     pipeline_split: str = "auto",
     trace: bool = True,
     free_space: bool = True,
     backend: str = "auto",
+    score_threshold: float | None = None,
+    data: str | None = None,
+    peer: bool = True,
 ) -> dict:
-    """Median / p95 ms per VGA frame of ``ShapeDetector.detect`` with GT boxes and with built-in
-    proposals, then the built-in throughput with the node's two-thread pipeline."""
+    """Median / p95 ms per VGA frame of serial ``ShapeDetector.detect`` (the realtime preset;
+    arguments that are not None change its settings) with GT boxes (``gt_boxes``), with 10
+    given boxes (``given10``, :func:`given_boxes`) and with built-in proposals
+    (``builtin``), the F-PointNet v1 forward of 10 x 1024 points in PyTorch beside it
+    (``peer``: :mod:`.model.fpointnet_v1`), then the built-in throughput with the node's
+    two-thread pipeline."""
     from .detector import ShapeDetector
-    from .synth.generate import generate_frame
 
-    det = ShapeDetector(
-        weights=weights, score_threshold=0.0, num_threads=threads, workers=workers, precision=precision,
-        max_objects=max_objects, classifier=classifier, refine=refine, trace=trace, free_space=free_space,
-        backend=backend,
+    overrides = dict(
+        precision=precision, weights=weights, score_threshold=score_threshold, num_threads=threads, workers=workers,
+        max_objects=max_objects, classifier=None if classifier else False, refine=refine, trace=trace,
+        free_space=free_space, backend=backend,
     )
-    scenes = [generate_frame(10_000 + i) for i in range(frames)]
+    det = ShapeDetector(**{k: v for k, v in overrides.items() if v is not None})
+    scenes = _pipeline_frames(frames, data)
     det.warm_up()  # as the node does at start: the network's graphs are traced
+    cfg = det.config
+    print(f"pipeline: {len(scenes)} VGA frames, backend {det.predictor.backend}, precision {det.predictor.precision}, "
+          f"max_objects {cfg.max_objects}, workers {cfg.workers}, threads {cfg.num_threads}, "
+          f"score_threshold {cfg.score_threshold}; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs",
+          flush=True)
     out: dict[str, dict] = {}
-    for mode in ("gt_boxes", "builtin"):
-        times, parts, nobj = [], [], []
+    for mode in ("gt_boxes", "given10", "builtin"):
+        times, cpu, parts, nobj = [], [], [], []
         det.detect(scenes[0].rgb, scenes[0].depth, scenes[0].K)  # warm-up
         for f in scenes:
-            boxes = [(*o.box2d, o.class_name) for o in f.objects] if mode == "gt_boxes" else None
-            t0 = time.perf_counter()
+            boxes = {"gt_boxes": [(*o.box2d, o.class_name) for o in f.objects], "given10": given_boxes(f),
+                     "builtin": None}[mode]
+            t0, c0 = time.perf_counter(), time.process_time()
             det.detect(f.rgb, f.depth, f.K, boxes2d=boxes)
             times.append(1e3 * (time.perf_counter() - t0))
+            cpu.append(1e3 * (time.process_time() - c0))
             parts.append(det.last_timing)
             nobj.append(det.last_timing.get("num_frustums", 0))
         res = {
             "ms_p50": float(np.median(times)),
             "ms_p95": float(np.percentile(times, 95)),
             "fps_p50": float(1e3 / np.median(times)),
+            "cpu_ms_p50": float(np.median(cpu)),
             "frustums_per_frame": float(np.mean(nobj)),
         }
         for key in ("proposals_ms", "frustums_ms", "network_ms", "classifier_ms", "refine_ms", "post_ms"):
@@ -97,20 +151,29 @@ def bench_pipeline(
         out[mode] = res
         print(
             f"pipeline[{mode}]: {res['ms_p50']:.1f} ms/frame p50 ({res['fps_p50']:.1f} fps), p95 {res['ms_p95']:.1f} ms, "
+            f"cpu {res['cpu_ms_p50']:.1f} ms, "
             f"{res['frustums_per_frame']:.1f} frustums/frame; proposals {res['proposals_ms_p50']:.1f} ms, "
             f"frustums {res['frustums_ms_p50']:.1f} ms, network {res['network_ms_p50']:.1f} ms, "
             f"classifier {res['classifier_ms_p50']:.1f} ms, second pass {res['refine_ms_p50']:.1f} ms, "
             f"post {res['post_ms_p50']:.1f} ms",
             flush=True,
         )
-    # as the node runs it: two stages, each single-threaded (workers=1: the stages keep both
-    # cores busy; a third thread only contends for them)
-    det.predictor.workers = 1
+    if peer:
+        from .model.fpointnet_v1 import time_fpointnet_v1
+
+        v1 = time_fpointnet_v1(batch=10, num_points=1024, threads=max(1, cfg.num_threads))
+        g10 = out["given10"]
+        v1["ratio_to_given10"] = v1["ms_p50"] / g10["ms_p50"]
+        v1["cpu_ratio_to_given10"] = v1["cpu_ms_p50"] / g10["cpu_ms_p50"]
+        out["fpointnet_v1"] = v1
+        print(f"peer: F-PointNet v1 forward, 10 x 1024 points, PyTorch, {v1['threads']} thread(s): "
+              f"{v1['ms_p50']:.1f} ms (cpu {v1['cpu_ms_p50']:.1f} ms) = {v1['ratio_to_given10']:.1f}x "
+              f"(cpu {v1['cpu_ratio_to_given10']:.1f}x) our detect() with 10 given boxes", flush=True)
+    # as the node runs it: two stages, the network split over the detector's workers
     res = _bench_pipelined(det, scenes, pipeline_split)
-    det.predictor.workers = workers
     out["builtin_pipelined"] = res
     print(
-        f"pipeline[builtin, node's 2-stage pipeline, workers=1]: {res['ms_per_frame']:.1f} ms/frame throughput "
+        f"pipeline[builtin, node's 2-stage pipeline, workers={cfg.workers}]: {res['ms_per_frame']:.1f} ms/frame throughput "
         f"({res['fps']:.1f} fps); latency p50 {res['latency_ms_p50']:.1f} ms, p95 {res['latency_ms_p95']:.1f} ms; "
         f"first pass in the first stage for {100 * res['first_pass_early_share']:.0f}% of the frames "
         f"(pipeline_split {pipeline_split})",
@@ -191,8 +254,8 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
         from .model.bench import bench_network
 
         return bench_network(
-            weights=args.weights, threads=args.threads, workers=args.workers, precision=args.precision,
-            trace=not args.no_trace, backend=args.backend,
+            weights=args.weights, threads=1 if args.threads is None else args.threads, workers=args.workers or 1,
+            precision=args.precision or "fp32", trace=not args.no_trace, backend=args.backend,
         )
     if target == "proposals":
         from .proposals.bench import bench_proposals
@@ -203,7 +266,8 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
             frames=args.frames, weights=args.weights, threads=args.threads, workers=args.workers,
             precision=args.precision, max_objects=args.max_objects, classifier=not args.no_classifier,
             refine=not args.no_refine, pipeline_split=args.pipeline_split, trace=not args.no_trace,
-            free_space=not args.no_free_space, backend=args.backend,
+            free_space=not args.no_free_space, backend=args.backend, score_threshold=args.score_threshold,
+            data=args.data, peer=not args.no_peer,
         )
     if target == "node":
         from .node_bench import bench_node
@@ -219,6 +283,7 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
 
 
 def main(args: argparse.Namespace) -> int:
+    """Run the chosen benchmarks; 1 when a soak run failed, else 0."""
     targets = TARGETS if args.target == "all" else (args.target,)
     results = {}
     for t in targets:

@@ -26,16 +26,19 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "evaluate-ar": ("shape_detector.evaluation.ar_cli",
                     "score the AR queries (ray casts, collision, paths) on generated walk-throughs"),
     "export": ("shape_detector.export.cli", "export a scene map JSON to .glb / .gltf / .obj for game engines"),
+    "export-onnx": ("shape_detector.model.export_cli", "write the ONNX graphs and graphs.json for deployment"),
     "config": ("shape_detector.config_docs", "print the settings as a ROS 2 parameters file (--preset) or table"),
     "config-path": ("shape_detector.cli", "print the path of a packaged config file"),
 }
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``shape-detector config-path``: the config file name under the package ``config/``."""
     p.add_argument("name", nargs="?", default="fastdds_shm.xml", help="file name under the package config/")
 
 
 def main_config_path(args: argparse.Namespace) -> int:
+    """Print the absolute path of packaged config file ``args.name``; exit code 2 when it does not exist."""
     path = Path(__file__).resolve().parent / "config" / args.name
     if not path.is_file():
         print(f"no packaged config file {args.name!r} (in {path.parent})", file=sys.stderr)

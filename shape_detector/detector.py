@@ -20,7 +20,7 @@ import numpy as np
 
 from .classes import CLASS_TO_ID
 from .detector_config import DetectorConfig, make_config, preset
-from .frustum import Frustum, extract_frustum, valid_depth
+from .frustum import Frustum, extract_frustums, valid_depth
 from .geometry import upright_rotation
 from .inputs import normalize_inputs
 from .postprocess import Hook, PostContext, build_pipeline
@@ -115,10 +115,10 @@ def _load_classifier(spec: str | Path | bool, cfg: DetectorConfig):
             warnings.warn(f"no packaged proposal classifier at {path}; the network's class head decides", stacklevel=3)
             return None
         raise FileNotFoundError(f"proposal classifier {path} not found")
-    from .model.classifier import ClassifierPredictor, load_classifier
+    from .model.classifier_runtime import ClassifierPredictor
 
-    return ClassifierPredictor(load_classifier(path)[0], precision=cfg.precision, trace=cfg.trace,
-                               **_backend_kw(ClassifierPredictor, cfg))
+    # from the file: under onnxruntime its cached graph serves without importing torch
+    return ClassifierPredictor.from_file(path, precision=cfg.precision, trace=cfg.trace, backend=cfg.backend)
 
 
 def _classifier_spec(text: str) -> str | bool:
@@ -178,7 +178,7 @@ def reclassify(classifier: Any, frame: PreparedFrame, preds: list) -> list:
     from dataclasses import replace
 
     from .classes import CLASSES
-    from .model.classifier import frame_inputs
+    from .model.classifier_inputs import frame_inputs
 
     h, w = frame.depth.shape
     pts, glob = frame_inputs(
@@ -322,12 +322,8 @@ class ShapeDetector:
             parsed = sorted(built_in, key=lambda p: -p[2])
         parsed = parsed[: self.config.max_objects]
         t2 = time.perf_counter()
-        valid = valid_depth(depth) if parsed else None
-        R_cu = upright_rotation(up_used)
-        frustums = [
-            extract_frustum(rgb, depth, K, box, self.num_points, up=up_used, valid=valid, R_cu=R_cu)
-            for box, _, _ in parsed
-        ]
+        frustums = (extract_frustums(rgb, depth, K, [box for box, _, _ in parsed], self.num_points,
+                                     valid=valid_depth(depth), R_cu=upright_rotation(up_used)) if parsed else [])
         keep = [i for i, f in enumerate(frustums) if f.valid > 0]
         t3 = time.perf_counter()
         return PreparedFrame(
@@ -356,9 +352,20 @@ class ShapeDetector:
         class_ids = [CLASS_TO_ID[c] if c is not None else None for _, c, _ in frame.boxes]
         # the class-given second pass reuses the first pass's segmentation features
         keep = self.config.refine and any(c is None for c in class_ids)
-        frame.first = self.predictor.predict(frame.frustums, class_ids, mirror=self._mirror(frame), keep_features=keep)
+        frame.first = self.predictor.predict(frame.frustums, class_ids, mirror=self._mirror(frame), keep_features=keep,
+                                             shapes=not self._second_pass_replaces_shapes(class_ids))
         frame.timing["network_ms"] = 1e3 * (time.perf_counter() - t0)
         return frame
+
+    def _second_pass_replaces_shapes(self, class_ids: Sequence[int | None]) -> bool:
+        """Whether no first-pass primitive can reach the output: every frustum is
+        class-agnostic, so it either gets the class-given second pass (score >=
+        ``refine_min_score``; that pass's primitives replace the first's) or scores below
+        ``refine_min_score`` <= ``score_threshold`` and is not published. The first pass
+        then skips the shape branch."""
+        cfg = self.config
+        return (bool(class_ids) and cfg.refine and all(c is None for c in class_ids)
+                and cfg.refine_min_score <= cfg.score_threshold and bool(getattr(self.predictor, "has_class_head", False)))
 
     def finish(self, frame: PreparedFrame, hook: Hook | None = None) -> list[Object3D]:
         """Network (first pass; for built-in proposals the proposal classifier and the

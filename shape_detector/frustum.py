@@ -149,3 +149,49 @@ def extract_frustum(
     col = rgb[vv, uu].astype(np.float32) / 255.0
     pts = np.concatenate([p_f.astype(np.float32), col], axis=1)
     return Frustum(pts, index, int(n), phi, R_cu)
+
+
+def extract_frustums(
+    rgb: np.ndarray,
+    depth: np.ndarray,
+    K: np.ndarray,
+    boxes2d: list,
+    num_points: int,
+    up: np.ndarray | None = None,
+    valid: np.ndarray | None = None,
+    R_cu: np.ndarray | None = None,
+    max_depth: float = 10.0,
+) -> list[Frustum]:
+    """:func:`extract_frustum` (deterministic sampling) of every box in ``boxes2d``, the
+    per-box pixel selection in a loop and the back-projection, rotation into each frame
+    ``F`` and colour lookup of all sampled pixels at once; same frustums."""
+    h, w = depth.shape
+    if R_cu is None:
+        R_cu = upright_rotation(up)
+    if valid is None:
+        valid = valid_depth(depth, max_depth)
+    K = np.asarray(K, dtype=np.float64)
+    phis = [frustum_angle(b, K, R_cu) for b in boxes2d]
+    out: list[Frustum | None] = [None] * len(boxes2d)
+    picked, index = [], []
+    for i, box in enumerate(boxes2d):
+        x1, y1, x2, y2 = clip_box(box, w, h)
+        flat = np.flatnonzero(valid[y1:y2, x1:x2]) if x2 > x1 and y2 > y1 else np.zeros(0, np.int64)
+        if flat.size == 0:
+            out[i] = Frustum(np.zeros((num_points, 6), np.float32), np.zeros(num_points, np.int64), 0,
+                             float(phis[i]), R_cu)
+            continue
+        sel = np.linspace(0, flat.size - 1, num_points).round().astype(np.int64)
+        vv, uu = np.divmod(flat[sel], x2 - x1)
+        index.append((vv + y1) * w + (uu + x1))
+        picked.append((i, int(flat.size)))
+    if not picked:
+        return out  # type: ignore[return-value]
+    flat_all = np.concatenate(index)
+    p_cam = pixel_points(depth, K, flat_all).reshape(len(picked), num_points, 3)
+    col = (rgb.reshape(-1, 3)[flat_all].astype(np.float32) / 255.0).reshape(len(picked), num_points, 3)
+    for k, (i, n) in enumerate(picked):
+        R_fc = (R_cu @ rot_z(-float(phis[i]))).T
+        pts = np.concatenate([(p_cam[k] @ R_fc.T).astype(np.float32), col[k]], axis=1)
+        out[i] = Frustum(pts, index[k], n, float(phis[i]), R_cu)
+    return out  # type: ignore[return-value]

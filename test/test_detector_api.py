@@ -8,7 +8,7 @@ import pytest
 from shape_detector import ShapeDetector
 from shape_detector.box_iou import box3d_iou
 from shape_detector.geometry import rotation_to_heading
-from shape_detector.proposals.evaluate import placed_box_scene
+from toy_scenes import placed_box_scene
 
 CAM_HEIGHT = 1.3
 

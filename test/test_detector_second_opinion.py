@@ -12,7 +12,7 @@ from shape_detector import ShapeDetector
 from shape_detector.classes import CLASS_TO_ID, CLASSES, NUM_CLASSES
 from shape_detector.model.classifier import ClassifierConfig, ProposalClassifier, save_classifier
 from shape_detector.model.predictor import refined_score
-from shape_detector.proposals.evaluate import box_part, chair_parts, toy_scene, up_from_pitch_roll
+from toy_scenes import box_part, chair_parts, toy_scene, up_from_pitch_roll
 
 
 @pytest.fixture(scope="module")

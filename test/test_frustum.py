@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from shape_detector.frustum import backproject, clip_box, extract_frustum
+from shape_detector.frustum import backproject, clip_box, extract_frustum, extract_frustums
 from shape_detector.geometry import normalize, rot_z, upright_rotation
 
 K = np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]])
@@ -82,3 +82,23 @@ def test_zero_and_far_depth_are_invalid():
 def test_clip_box():
     assert clip_box((-10.2, 5.5, 700, 479.2), 640, 480) == (0, 5, 640, 480)
     assert clip_box((50, 50, 40, 60), 640, 480)[2] <= 50
+
+
+def test_extract_frustums_gives_the_frustums_of_extract_frustum():
+    rng = np.random.default_rng(3)
+    h, w = 120, 160
+    depth = rng.uniform(0.8, 4.0, (h, w)).astype(np.float32)
+    depth[rng.random((h, w)) < 0.1] = np.nan
+    depth[:, :20] = 0.0  # an invalid band: a box inside it has no points
+    rgb = rng.integers(0, 255, (h, w, 3), dtype=np.uint8)
+    K = np.array([[130.0, 0.0, 79.5], [0.0, 130.0, 59.5], [0.0, 0.0, 1.0]])
+    up = normalize(np.array([0.05, -1.0, -0.2]))
+    boxes = [(30, 20, 90, 100), (0, 0, 15, 50), (140.5, 90.2, 170, 130), (-20, -20, -5, -5), (50, 40, 52, 41)]
+    got = extract_frustums(rgb, depth, K, boxes, 64, up=up)
+    assert len(got) == len(boxes)
+    for box, g in zip(boxes, got):
+        want = extract_frustum(rgb, depth, K, box, 64, up=up)
+        assert g.valid == want.valid and g.phi == pytest.approx(want.phi, abs=1e-12)
+        np.testing.assert_allclose(g.points, want.points, atol=1e-6)
+        np.testing.assert_array_equal(g.pixel_index, want.pixel_index)
+    assert got[1].valid == 0 and got[3].valid == 0 and not np.any(got[3].points)

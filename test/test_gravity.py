@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from shape_detector.gravity import GravityEstimate, estimate_up, make_grid
-from shape_detector.proposals.evaluate import VGA_K, angle_deg, box_part, chair_parts, toy_scene, up_from_pitch_roll
+from shape_detector.proposals.evaluate import VGA_K, angle_deg
+
+from toy_scenes import box_part, chair_parts, toy_scene, up_from_pitch_roll
 
 OBJECTS = [
     ("table", [box_part(0.3, 3.0, 1.2, 0.8, 0.75)]),

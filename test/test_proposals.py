@@ -6,17 +6,10 @@ import numpy as np
 import pytest
 
 from shape_detector.proposals import Proposal, get_proposer
-from shape_detector.proposals.evaluate import (
-    VGA_K,
-    angle_deg,
-    box_iou,
-    box_part,
-    chair_parts,
-    evaluate_proposals,
-    toy_scene,
-    up_from_pitch_roll,
-)
+from shape_detector.proposals.evaluate import VGA_K, angle_deg, box_iou, evaluate_proposals
 from shape_detector.proposals.geometric import GeometricConfig, GeometricProposer
+
+from toy_scenes import box_part, chair_parts, toy_scene, up_from_pitch_roll
 
 ROOM = [(np.pi / 2, 3.25), (0.0, 3.0), (np.pi, 3.0)]  # back wall 3.25 m ahead, side walls
 

@@ -149,7 +149,7 @@ def toy_scene(
     return Frame(rgb, depth.astype(np.float32), K, up=up, objects=gts, instance_mask=label)
 
 
-def box_part(x: float, y: float, l: float, w: float, h: float, yaw: float = 0.0, z0: float = 0.0) -> ToyPart:  # noqa: E741
+def box_part(x: float, y: float, l: float, w: float, h: float, yaw: float = 0.0, z0: float = 0.0) -> ToyPart:
     """A cuboid standing on height ``z0`` with footprint centre (x, y)."""
     return ToyPart((x, y, z0 + 0.5 * h), (l, w, h), yaw)
 

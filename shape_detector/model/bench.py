@@ -183,7 +183,8 @@ def _bench_builtin_path(
         fr = _fake_frustums(int(c), n_pts, rng)
 
         def run() -> None:
-            first = pred.predict(fr, [None] * len(fr), keep_features=True)  # as the detector: reused below
+            # as the detector: features reused below, shapes left to the second pass
+            first = pred.predict(fr, [None] * len(fr), keep_features=True, shapes=False)
             clf.probabilities(*frame_inputs(fr, first, [(0, 0, 100, 100)] * len(fr), [1.0] * len(fr), (640, 480), 1.3,
                                             clf.config))
             pred.refine(fr, first)

@@ -234,6 +234,7 @@ class FrustumShapeNet(nn.Module):
         fg_override: torch.Tensor | None = None,
         shape_box: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None,
         seg_cache: tuple[torch.Tensor, torch.Tensor] | None = None,
+        with_shape: bool = True,
     ) -> dict[str, torch.Tensor]:
         """``points`` (B,N,>=3) frame F [+ rgb], ``one_hot`` (B,num_classes) (zeros allowed).
 
@@ -242,6 +243,8 @@ class FrustumShapeNet(nn.Module):
         canonicalises the shape branch's input (default: the predicted box, detached).
         ``seg_cache`` = the ``seg_glob`` / ``seg_local`` outputs of an earlier forward over the
         same ``points`` (any one-hot): the segmentation PointNet is skipped, same result.
+        ``with_shape=False`` skips the shape branch (no ``shape_raw``; every other output the
+        same): inference passes whose primitives nobody reads.
         Returns a dict of tensors (see the module docstring); ``center``, ``box_heading``,
         ``box_size``, ``box_cluster`` are the decoded predicted box (size cluster = the
         given class, else the size head's argmax; after the second box stage when the network
@@ -279,21 +282,11 @@ class FrustumShapeNet(nn.Module):
         box2_res = None
         if self.box2_mlp is not None:
             center, heading, size, box2_res = self.second_box_stage(xyz, fg, feat, one_hot, center_head, heading, size)
-        if shape_box is None:
-            sc, sh, ss = center.detach(), heading.detach(), size.detach()
-        else:
-            sc, sh, ss = (t.detach() for t in shape_box)
-        shape_in = torch.cat([fo, self.shape_mlp.forward_max(to_unit_box(obj, sc, sh, ss))], 1)
-        if self.shape_ctx_mlp is not None:
-            qa = to_unit_box(xyz, sc, sh, ss).clamp(-4.0, 4.0)
-            qa = torch.cat([qa, fg.unsqueeze(-1).to(qa.dtype)], -1)
-            shape_in = torch.cat([shape_in, self.shape_ctx_mlp.forward_max(qa)], 1)
         cls_logits = self.cls_head(torch.cat([seg_glob, feat], 1))
-        shape_raw = self.shape_head(shape_in)
-        if self.shape_anchor is not None:
-            # the given class's anchors, else those of the classification head's best class
-            anchor_cls = torch.where(given, one_hot.argmax(1), cls_logits[:, : cfg.num_classes].argmax(1))
-            shape_raw = shape_raw + self.shape_anchor[anchor_cls]
+        shape_raw = None
+        if with_shape:
+            shape_raw = self._shape_raw(obj, xyz, fg, fo, one_hot, given, cls_logits,
+                                        (center, heading, size) if shape_box is None else shape_box)
         out: dict[str, torch.Tensor] = {
             "seg_logits": seg_logits,
             "seg_glob": seg_glob,
@@ -306,13 +299,42 @@ class FrustumShapeNet(nn.Module):
             "box_heading": heading,
             "box_size": size,
             "box_cluster": cluster,
-            "shape_raw": shape_raw.view(-1, cfg.num_primitives, 10),
             "cls_logits": cls_logits,
         }
+        if shape_raw is not None:
+            out["shape_raw"] = shape_raw.view(-1, cfg.num_primitives, 10)
         if box2_res is not None:
             out["box2_res"] = box2_res
         out.update(heads)
         return out
+
+    def _shape_raw(
+        self,
+        obj: torch.Tensor,
+        xyz: torch.Tensor,
+        fg: torch.Tensor,
+        fo: torch.Tensor,
+        one_hot: torch.Tensor,
+        given: torch.Tensor,
+        cls_logits: torch.Tensor,
+        shape_box: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
+    ) -> torch.Tensor:
+        """The shape head's raw output (B, M*10): the object points ``obj`` (B,NO,3) and all
+        frustum points ``xyz`` (B,N,3, hard mask ``fg``) in the unit-cube frame of
+        ``shape_box`` (centre, heading, size; frame F, taken as constants), with the box
+        feature + one-hot ``fo``, plus the anchor row of the given class (``given``), else of
+        the class head's best class."""
+        sc, sh, ss = (t.detach() for t in shape_box)
+        shape_in = torch.cat([fo, self.shape_mlp.forward_max(to_unit_box(obj, sc, sh, ss))], 1)
+        if self.shape_ctx_mlp is not None:
+            qa = to_unit_box(xyz, sc, sh, ss).clamp(-4.0, 4.0)
+            qa = torch.cat([qa, fg.unsqueeze(-1).to(qa.dtype)], -1)
+            shape_in = torch.cat([shape_in, self.shape_ctx_mlp.forward_max(qa)], 1)
+        shape_raw = self.shape_head(shape_in)
+        if self.shape_anchor is not None:
+            anchor_cls = torch.where(given, one_hot.argmax(1), cls_logits[:, : self.config.num_classes].argmax(1))
+            shape_raw = shape_raw + self.shape_anchor[anchor_cls]
+        return shape_raw
 
     @torch.no_grad()
     def fuse_batchnorm(self) -> "FrustumShapeNet":

@@ -98,9 +98,10 @@ def make_session(path: str | Path, threads: int = 1, device: str = "cpu", spinni
 
 class OrtFrustumForward:
     """The frustum network's inference forward in onnxruntime: ``forward(points, one_hot,
-    seg_cache)`` -> the dict of :meth:`FrustumPredictor.forward_arrays
+    seg_cache, shapes)`` -> the dict of :meth:`FrustumPredictor.forward_arrays
     <shape_detector.model.predictor.FrustumPredictor.forward_arrays>` (numpy; ``seg_glob`` /
-    ``seg_local`` included). ``folder`` holds ``frustum_seg.onnx`` / ``frustum_head.onnx``.
+    ``seg_local`` included; ``shapes=False``: without the shape branch, primitives zeros).
+    ``folder`` holds ``frustum_seg.onnx`` / ``frustum_head.onnx`` / ``frustum_box.onnx``.
     Sessions are thread-safe: chunks of a batch may run on several Python threads (the GIL
     is released while a graph runs)."""
 
@@ -108,17 +109,23 @@ class OrtFrustumForward:
         folder = Path(folder)
         self.seg = make_session(folder / GRAPH_FILES["frustum_seg"], threads, device)
         self.head = make_session(folder / GRAPH_FILES["frustum_head"], threads, device)
+        self.box = make_session(folder / GRAPH_FILES["frustum_box"], threads, device)
 
     def __call__(
-        self, points: np.ndarray, one_hot: np.ndarray, seg_cache: tuple[np.ndarray, np.ndarray] | None = None
+        self,
+        points: np.ndarray,
+        one_hot: np.ndarray,
+        seg_cache: tuple[np.ndarray, np.ndarray] | None = None,
+        shapes: bool = True,
     ) -> dict[str, np.ndarray]:
         pts = np.ascontiguousarray(points, np.float32)
         if seg_cache is None:
             glob, local = self.seg.run(None, {"points": pts})
         else:
             glob, local = (np.ascontiguousarray(_numpy(t), np.float32) for t in seg_cache)
-        outs = self.head.run(None, {"points": pts, "one_hot": np.ascontiguousarray(one_hot, np.float32),
-                                    "seg_glob": glob, "seg_local": local})
+        graph = self.head if shapes else self.box
+        outs = graph.run(None, {"points": pts, "one_hot": np.ascontiguousarray(one_hot, np.float32),
+                                "seg_glob": glob, "seg_local": local})
         res = dict(zip(HEAD_OUTPUTS, outs))
         res["seg_glob"], res["seg_local"] = glob, local
         return res

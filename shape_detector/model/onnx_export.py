@@ -1,6 +1,6 @@
 """ONNX graphs of the inference forwards, checked against PyTorch and cached by weights digest.
 
-Three graphs, each with a dynamic batch axis (and a dynamic point axis where it has one):
+Four graphs, each with a dynamic batch axis (and a dynamic point axis where it has one):
 
 * ``frustum_seg``: ``points (B,N,6)`` -> ``seg_glob (B,G)``, ``seg_local (B,N,H)``: the
   class-independent segmentation features of :meth:`FrustumShapeNet.seg_features
@@ -9,6 +9,8 @@ Three graphs, each with a dynamic batch axis (and a dynamic point axis where it 
   :func:`~shape_detector.model.traced.inference_outputs` (:data:`HEAD_OUTPUTS`, frame F).
   A first pass runs both graphs; the class-given second pass reuses the first pass's
   features and runs only this one;
+* ``frustum_box``: ``frustum_head`` without the shape branch (same inputs and outputs, the
+  primitives zeros): a first pass whose primitives the second pass replaces;
 * ``classifier``: ``points (B,N,7), globals (B,G)`` -> calibrated ``probs (B,C+1)`` of the
   proposal classifier.
 
@@ -45,7 +47,10 @@ HEAD_OUTPUTS = (
     "probs", "seg_prob", "center", "heading", "heading_conf", "size", "cluster", "fg_score",
     "prim_center", "prim_size", "prim_rotation",
 )
-GRAPH_FILES = {"frustum_seg": "frustum_seg.onnx", "frustum_head": "frustum_head.onnx", "classifier": "classifier.onnx"}
+GRAPH_FILES = {"frustum_seg": "frustum_seg.onnx", "frustum_head": "frustum_head.onnx", "frustum_box": "frustum_box.onnx",
+               "classifier": "classifier.onnx"}
+#: the frustum network's graphs, all needed for a usable export
+FRUSTUM_GRAPHS = ("frustum_seg", "frustum_head", "frustum_box")
 META_FILE = "graphs.json"
 
 
@@ -127,12 +132,14 @@ def _wrappers():
             return self.model.seg_features(points)
 
     class HeadGraph(nn.Module):
-        def __init__(self, model: nn.Module) -> None:
+        def __init__(self, model: nn.Module, with_shape: bool = True) -> None:
             super().__init__()
             self.model = model
+            self.with_shape = with_shape
 
         def forward(self, points, one_hot, seg_glob, seg_local) -> tuple[torch.Tensor, ...]:
-            return inference_outputs(self.model, points, one_hot, (seg_glob, seg_local))[: len(HEAD_OUTPUTS)]
+            out = inference_outputs(self.model, points, one_hot, (seg_glob, seg_local), with_shape=self.with_shape)
+            return out[: len(HEAD_OUTPUTS)]
 
     class ClassifierGraph(nn.Module):
         def __init__(self, model: nn.Module) -> None:
@@ -182,7 +189,7 @@ def _check(path: Path, module: Any, make_inputs, names: list[str], atol: float) 
 
 
 def export_frustum_graphs(model: Any, folder: str | Path, meta: dict[str, Any] | None = None) -> dict[str, Path]:
-    """Export (and check) ``frustum_seg`` and ``frustum_head`` of an eval-mode
+    """Export (and check) ``frustum_seg``, ``frustum_head`` and ``frustum_box`` of an eval-mode
     :class:`~shape_detector.model.network.FrustumShapeNet` (BatchNorm folded or not) into
     ``folder``; ``graphs.json`` gets their inputs / outputs, the model config and ``meta``
     (e.g. the weights' ``tasks``). Returns the graph paths."""
@@ -193,7 +200,7 @@ def export_frustum_graphs(model: Any, folder: str | Path, meta: dict[str, Any] |
     SegGraph, HeadGraph, _ = _wrappers()
     cfg = model.config
     n, nc = int(cfg.num_points), int(cfg.num_classes)
-    seg, head = SegGraph(model).eval(), HeadGraph(model).eval()
+    seg, head, box = SegGraph(model).eval(), HeadGraph(model).eval(), HeadGraph(model, with_shape=False).eval()
 
     def points(b: int, seed: int = 0) -> torch.Tensor:
         g = torch.Generator().manual_seed(seed + b)
@@ -214,15 +221,17 @@ def export_frustum_graphs(model: Any, folder: str | Path, meta: dict[str, Any] |
         return p, one_hot(b), glob.clone(), local.clone()
 
     batch = {0: "batch", 1: "points"}
-    paths = {k: folder / GRAPH_FILES[k] for k in ("frustum_seg", "frustum_head")}
+    paths = {k: folder / GRAPH_FILES[k] for k in FRUSTUM_GRAPHS}
     _export(seg, (points(2),), paths["frustum_seg"], {"points": batch},
             {"seg_glob": {0: "batch"}, "seg_local": batch})
     out_axes = {k: ({0: "batch", 1: "points"} if k == "seg_prob" else {0: "batch"}) for k in HEAD_OUTPUTS}
     in_names = ["points", "one_hot", "seg_glob", "seg_local"]
-    _export(head, head_inputs(2), paths["frustum_head"],
-            {"points": batch, "one_hot": {0: "batch"}, "seg_glob": {0: "batch"}, "seg_local": batch}, out_axes)
+    head_axes = {"points": batch, "one_hot": {0: "batch"}, "seg_glob": {0: "batch"}, "seg_local": batch}
+    _export(head, head_inputs(2), paths["frustum_head"], head_axes, out_axes)
+    _export(box, head_inputs(2), paths["frustum_box"], head_axes, out_axes)
     err_seg = _check(paths["frustum_seg"], seg, lambda b: (points(b, 7),), ["points"], CHECK_ATOL)
     err_head = _check(paths["frustum_head"], head, head_inputs, in_names, CHECK_ATOL)
+    err_box = _check(paths["frustum_box"], box, head_inputs, in_names, CHECK_ATOL)
     _write_meta(folder, {
         "model_config": cfg.to_dict(),
         "meta": dict(meta or {}),
@@ -234,6 +243,11 @@ def export_frustum_graphs(model: Any, folder: str | Path, meta: dict[str, Any] |
                                         "seg_local": ["B", "N", "H"]},
                              "outputs": list(HEAD_OUTPUTS), "max_abs_err": err_head,
                              "frame": "frustum frame F (metres, radians); probs background last"},
+            "frustum_box": {"file": GRAPH_FILES["frustum_box"],
+                            "inputs": {"points": ["B", "N", 6], "one_hot": ["B", nc], "seg_glob": ["B", "G"],
+                                       "seg_local": ["B", "N", "H"]},
+                            "outputs": list(HEAD_OUTPUTS), "max_abs_err": err_box,
+                            "frame": "as frustum_head, without the shape branch (prim_* zeros)"},
         },
     })
     return paths
@@ -289,12 +303,12 @@ def frustum_graphs(weights: str | Path | None, load_model) -> tuple[Path, dict[s
     else:
         digest = file_digest(weights)
     folder = cache_dir("frustum", digest)
-    info = _complete(folder, ("frustum_seg", "frustum_head"))
+    info = _complete(folder, FRUSTUM_GRAPHS)
     if info is None:
         if model is None:
             model, meta = load_model()
         export_frustum_graphs(model, folder, {"tasks": meta.get("tasks")})
-        info = _complete(folder, ("frustum_seg", "frustum_head"))
+        info = _complete(folder, FRUSTUM_GRAPHS)
         if info is None:
             raise RuntimeError(f"export to {folder} left no usable graphs")
     return folder, info, model

@@ -18,7 +18,7 @@ foreground points as score. Frustums with no valid point get score 0.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Sequence
 
@@ -33,6 +33,7 @@ from ..types import Cuboid
 from .config import PRECISIONS, ModelConfig
 from .batching import MIRROR_CONFLICT, concat as _concat, merge_mirrored, repeat_first as _repeat_first, stack as _stack
 from .onnx_backend import resolve_backend
+from .prediction import FrustumPrediction, refined_score
 
 if TYPE_CHECKING:
     import torch
@@ -67,38 +68,6 @@ def cpu_has_amx() -> bool:
         return False
 
 
-@dataclass
-class FrustumPrediction:
-    """Network output for one frustum; 3D quantities in the **camera** frame (metres).
-
-    ``class_probs`` (num_classes+1,), background last; ``rotation`` columns = box axes
-    (z column = gravity-up); ``primitives`` camera-frame cuboids after pruning;
-    ``primitives_canonical`` the same in the canonical object frame (box centre, x =
-    heading, z up, metres) for composing with another box (e.g. the GT one);
-    ``seg_prob`` (N,) foreground probability of each frustum point; ``center_F`` /
-    ``heading_F`` the box in the frustum frame. ``seg_features``: the network's
-    class-independent segmentation features of this frustum (torch tensors, only with
-    ``predict(..., keep_features=True)``), which let :meth:`FrustumPredictor.refine` skip the
-    segmentation PointNet.
-    """
-
-    class_name: str
-    class_probs: np.ndarray
-    score: float
-    center: np.ndarray
-    size: np.ndarray
-    rotation: np.ndarray
-    heading_U: float
-    primitives: list[Cuboid]
-    seg_prob: np.ndarray
-    num_points_valid: int
-    objectness: float = 0.0
-    center_F: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    heading_F: float = 0.0
-    primitives_canonical: list[Cuboid] = field(default_factory=list)
-    seg_features: tuple[Any, Any] | None = field(default=None, repr=False, compare=False)
-
-
 def resolve_device(device: "str | torch.device | None") -> "torch.device":
     """``"auto"``/None -> cuda when available else cpu; otherwise ``torch.device(device)``."""
     import torch
@@ -106,14 +75,6 @@ def resolve_device(device: "str | torch.device | None") -> "torch.device":
     if device is None or str(device) == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(device)
-
-
-def refined_score(class_prob: float, objectness: float) -> float:
-    """Score of a class-agnostic detection after its class-given second pass
-    (:meth:`FrustumPredictor.refine`): the geometric mean of the first pass's probability of
-    its class and the second pass's objectness (1 - background probability, given that
-    class)."""
-    return float(np.sqrt(max(class_prob, 0.0) * max(objectness, 0.0)))
 
 
 def default_weights_path() -> Path:
@@ -289,15 +250,18 @@ class FrustumPredictor:
         one_hot: np.ndarray,
         seg_cache: tuple[Any, Any] | None = None,
         keep_features: bool = False,
+        shapes: bool = True,
     ) -> dict[str, np.ndarray]:
         """Raw batched forward on (B,N,6) points / (B,C) one-hot; decoded frame-F arrays.
 
         ``seg_cache``: the ``seg_glob`` / ``seg_local`` of an earlier call on the same points
         (the segmentation PointNet is skipped); ``keep_features`` adds them to the result
-        (numpy arrays under onnxruntime, torch tensors under torch).
+        (numpy arrays under onnxruntime, torch tensors under torch). ``shapes=False`` lets
+        onnxruntime skip the shape branch (the primitives are then meaningless; torch
+        computes them anyway).
         """
         if self._ort is not None:
-            out = self._ort(points, one_hot, seg_cache)
+            out = self._ort(points, one_hot, seg_cache, shapes)
             if not keep_features:
                 out.pop("seg_glob"), out.pop("seg_local")
             return out
@@ -326,6 +290,7 @@ class FrustumPredictor:
         mirror: bool = False,
         keep_features: bool = False,
         seg_features: Sequence[tuple[Any, Any] | None] | None = None,
+        shapes: bool = True,
     ) -> list[FrustumPrediction]:
         """Predictions for ``frustums`` (class ids: index into CLASSES, or None = unknown).
 
@@ -336,6 +301,8 @@ class FrustumPredictor:
         features (``FrustumPrediction.seg_features``); ``seg_features``: such features of an
         earlier pass over the same frustums, one per frustum (used where a whole
         same-size group has them, without mirror: that group skips the segmentation PointNet).
+        ``shapes=False``: no primitives (empty lists; the shape branch is skipped where the
+        runtime can), for a pass whose primitives a later pass replaces.
         """
         n = len(frustums)
         if class_ids is None:
@@ -364,10 +331,11 @@ class FrustumPredictor:
             if mirror:
                 flipped = pts.copy()
                 flipped[..., 0] *= -1.0
-                arr = merge_mirrored(self._forward_parallel(np.concatenate([pts, flipped]), np.concatenate([oh, oh])))
+                arr = merge_mirrored(self._forward_parallel(np.concatenate([pts, flipped]), np.concatenate([oh, oh]),
+                                                            shapes=shapes))
             else:
-                arr = self._forward_parallel(pts, oh, cache, keep)
-            for j, p in enumerate(self._decode([frustums[i] for i in idx], [class_ids[i] for i in idx], arr)):
+                arr = self._forward_parallel(pts, oh, cache, keep, shapes)
+            for j, p in enumerate(self._decode([frustums[i] for i in idx], [class_ids[i] for i in idx], arr, shapes)):
                 results[idx[j]] = p
                 if keep:
                     p.seg_features = (arr["seg_glob"][j], arr["seg_local"][j])
@@ -418,12 +386,13 @@ class FrustumPredictor:
         oh: np.ndarray,
         seg_cache: tuple[Any, Any] | None = None,
         keep_features: bool = False,
+        shapes: bool = True,
     ) -> dict[str, Any]:
         """:meth:`forward_arrays`, split over ``self.workers`` threads for large batches."""
         n = pts.shape[0]
         k = min(self.workers, n // self.min_chunk)
         if k <= 1:
-            return self.forward_arrays(pts, oh, seg_cache, keep_features)
+            return self.forward_arrays(pts, oh, seg_cache, keep_features, shapes)
         if self._pool is None:
             from concurrent.futures import ThreadPoolExecutor
 
@@ -436,15 +405,18 @@ class FrustumPredictor:
                 oh[a:b],
                 None if seg_cache is None else (seg_cache[0][a:b], seg_cache[1][a:b]),
                 keep_features,
+                shapes,
             )
             for a, b in zip(bounds[:-1], bounds[1:])
         ]
         parts = [f.result() for f in futs]
         return {key: _concat([p[key] for p in parts]) for key in parts[0]}
 
-    def _decode(self, frs: Sequence[Frustum], cids: Sequence[int | None], arr: dict[str, np.ndarray]) -> list[FrustumPrediction]:
+    def _decode(self, frs: Sequence[Frustum], cids: Sequence[int | None], arr: dict[str, np.ndarray],
+                shapes: bool = True) -> list[FrustumPrediction]:
         """One :class:`FrustumPrediction` per row of ``arr`` (frame F -> camera), the
-        rotations, centres and primitive transforms computed for the whole batch at once."""
+        rotations, centres and primitive transforms computed for the whole batch at once
+        (``shapes=False``: no primitives)."""
         nc = self.config.num_classes
         B = len(frs)
         probs = np.asarray(arr["probs"][:B], np.float64)
@@ -471,6 +443,7 @@ class FrustumPredictor:
         vol = np.prod(ps, axis=2)
         keep = vol >= self.config.prune_volume_frac * np.prod(size, axis=1, keepdims=True)
         keep[np.arange(B), np.argmax(vol, axis=1)] |= ~keep.any(1)
+        keep &= bool(shapes)
         cam_c = np.einsum("bij,bmj->bmi", R_box, pc) + center[:, None, :]
         cam_r = np.einsum("bij,bmjk->bmik", R_box, pr)
         heading_U = wrap_angle(heading_F - phi)

@@ -52,6 +52,7 @@ def inference_outputs(
     points: torch.Tensor,
     one_hot: torch.Tensor,
     seg_cache: tuple[torch.Tensor, torch.Tensor] | None = None,
+    with_shape: bool = True,
 ) -> tuple[torch.Tensor, ...]:
     """The network's forward and its decoding for inference, :data:`OUTPUT_KEYS` in order
     (frame F): temperature-calibrated class probabilities (background last), per-point
@@ -59,12 +60,16 @@ def inference_outputs(
     confidence, the mean foreground probability of the foreground points, the primitives
     (canonical frame), all float32, and the class-independent segmentation features (in the
     forward's dtype). The decoding runs outside any autocast region, in the dtype the forward
-    left."""
-    out = model(points, one_hot, random_gather=False, seg_cache=seg_cache)
+    left. ``with_shape=False`` skips the shape branch: the primitives are then zeros."""
+    out = model(points, one_hot, random_gather=False, seg_cache=seg_cache, with_shape=with_shape)
     with torch.autocast(points.device.type, enabled=False):
         probs = torch.softmax(out["cls_logits"] / model.cls_temperature.clamp_min(1e-3), dim=1)
         seg_prob = torch.softmax(out["seg_logits"], dim=-1)[..., 1]
-        prims = primitive_params(out["shape_raw"], out["box_size"], **model.config.primitive_kwargs())
+        if with_shape:
+            prims = primitive_params(out["shape_raw"], out["box_size"], **model.config.primitive_kwargs())
+        else:
+            z = out["box_size"].new_zeros(out["box_size"].shape[0], model.config.num_primitives, 3)
+            prims = {"center": z, "size": z, "rotation": z.unsqueeze(-1).expand(-1, -1, -1, 3)}
         heading_conf = torch.softmax(out["heading_scores"].float(), dim=1).amax(1)
         fg = seg_prob > 0.5
         fg_score = (seg_prob * fg).sum(1) / fg.sum(1).clamp_min(1)

@@ -1,8 +1,7 @@
 """``shape-detector bench proposals``: gravity + geometric proposals, ms per VGA frame.
 
-Times, on generated VGA frames (``shape_detector.synth.generate``; ray-cast toy scenes
-if the generator is unavailable), the stages of :class:`GeometricProposer` as the
-detector runs them: ``grid`` (strided back-projection + normals), ``gravity``
+Times, on generated VGA frames (``shape_detector.synth.generate``), the stages of
+:class:`GeometricProposer` as the detector runs them: ``grid`` (strided back-projection + normals), ``gravity``
 (:func:`~shape_detector.gravity.estimate_up` on that grid), ``proposals`` (structure
 removal, segmentation, hypotheses) and ``total`` (the whole call). Prints and returns
 median / p95 wall-clock ms and the median thread CPU ms (less sensitive to other
@@ -18,23 +17,10 @@ import numpy as np
 
 
 def _frames(n: int, seed0: int):
-    try:
-        from ..synth.generate import generate_frame
+    """``n`` generated VGA frames (seeds ``seed0``...) and the source's name."""
+    from ..synth.generate import generate_frame
 
-        return [generate_frame(seed0 + i) for i in range(n)], "synth"
-    except ImportError:  # pragma: no cover - generator not installed
-        from .evaluate import box_part, chair_parts, toy_scene, up_from_pitch_roll
-
-        rng = np.random.default_rng(seed0)
-        out = []
-        for i in range(n):
-            objs = [
-                ("table", [box_part(rng.uniform(-1, 1), rng.uniform(2.5, 4), 1.2, 0.8, 0.75)]),
-                ("chair", chair_parts(rng.uniform(-1.5, 1.5), rng.uniform(2, 3.5), rng.uniform(0, 3))),
-            ]
-            up = up_from_pitch_roll(rng.uniform(0, 35), rng.normal(0, 3))
-            out.append(toy_scene(objs, up=up, walls=[(np.pi / 2, 5.0), (0.0, 2.5)], seed=i))
-        return out, "toy"
+    return [generate_frame(seed0 + i) for i in range(n)], "synth"
 
 
 def bench_proposals(frames: int = 20, seed0: int = 20_000, repeats: int = 2, verbose: bool = True) -> dict:

@@ -1,0 +1,73 @@
+"""``shape-detector export-onnx``: the inference graphs as ONNX files, for deployment elsewhere.
+
+Writes into ``--out``: ``frustum_seg.onnx`` and ``frustum_head.onnx`` (the frustum network's
+first and class-given passes, see :mod:`.onnx_export`), ``classifier.onnx`` (the proposal
+classifier, unless ``--classifier none``) and ``graphs.json``: every graph's inputs and
+outputs (names, axes: ``B`` batch, ``N`` points), the model configuration, the weights'
+sha256 and the largest difference from PyTorch measured on random inputs. Each graph has a
+dynamic batch axis and is checked in onnxruntime against PyTorch before it is kept. Needs
+torch and the ``onnx`` package (running the files needs only onnxruntime).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def configure_parser(p: argparse.ArgumentParser) -> None:
+    """Options of ``export-onnx``."""
+    p.add_argument("--out", required=True, help="folder to write the graphs and graphs.json into (created)")
+    p.add_argument("--weights", default=None, help="frustum network weights (default: the packaged ones)")
+    p.add_argument("--classifier", default=None,
+                   help="proposal classifier weights (default: the packaged ones; 'none': skip it)")
+
+
+def export_all(out: str | Path, weights: str | Path | None = None, classifier: str | Path | None = None) -> dict:
+    """Export the frustum graphs of ``weights`` (None: packaged) and, unless ``classifier`` is
+    ``"none"``, the classifier graph into ``out``; returns the written ``graphs.json``.
+    FileNotFoundError for a missing weights file."""
+    from .classifier import load_classifier
+    from .io import load_weights
+    from .onnx_export import META_FILE, export_classifier_graph, export_frustum_graphs, file_digest
+    from .predictor import default_weights_path
+
+    out = Path(out)
+    wpath = Path(weights) if weights else default_weights_path()
+    if not wpath.is_file():
+        raise FileNotFoundError(f"weights file {wpath} not found")
+    cpath: Path | None = None
+    if str(classifier) != "none":
+        cpath = Path(classifier) if classifier else wpath.with_name("classifier.pt")
+        if not cpath.is_file():
+            if classifier:
+                raise FileNotFoundError(f"classifier file {cpath} not found")
+            cpath = None  # no packaged classifier: the frustum graphs alone
+    model, meta = load_weights(wpath, "cpu")
+    export_frustum_graphs(model.eval().fuse_batchnorm(), out, {
+        "tasks": meta.get("tasks"), "weights_file": wpath.name, "weights_sha256": file_digest(wpath),
+    })
+    if cpath is not None:
+        export_classifier_graph(load_classifier(cpath)[0].eval().fuse_batchnorm(), out)
+    info = json.loads((out / META_FILE).read_text())
+    if cpath is not None:
+        info["classifier_sha256"] = file_digest(cpath)
+        (out / META_FILE).write_text(json.dumps(info, indent=2, default=str))
+    return info
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run ``export-onnx``; 0 on success, 2 on a missing file or package."""
+    try:
+        info = export_all(args.out, args.weights, args.classifier)
+    except (FileNotFoundError, ImportError) as e:
+        print(f"shape-detector export-onnx: {e}", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    for name, g in info.get("graphs", {}).items():
+        print(f"{out / g['file']}: {name}, inputs {list(g['inputs'])}, max |onnxruntime - torch| "
+              f"{float(g['max_abs_err']):.2g}")
+    print(f"{out / 'graphs.json'}: inputs, outputs and model configuration")
+    return 0

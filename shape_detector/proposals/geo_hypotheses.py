@@ -1,0 +1,294 @@
+"""Hypotheses of the geometric proposer: gravity-aware groupings of segments on the floor
+footprint grid (core, stack, group, blob, splits, layers) as scored candidate boxes."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from ..gravity import DepthGrid
+from .geo_ranking import _NF, _features
+
+if TYPE_CHECKING:
+    from .geometric import GeometricConfig, ProposalDebug
+
+#: stats rows: umin vmin umax vmax xmin ymin xmax ymax hmax hmin; sign turning all into minima
+_SIGN = np.array([1, 1, -1, -1, 1, 1, -1, -1, -1, 1], np.float64)
+
+
+class HypothesisBuilder:
+    """Mixin of :class:`~.geometric.GeometricProposer`: per-point data, hypotheses of a
+    segmentation, equal splits, footprint layers and their boxes (uses ``self.config``)."""
+
+    config: GeometricConfig
+    debug: ProposalDebug
+
+    def _point_data(self, grid: DepthGrid, obj: np.ndarray, X, Y, hgt) -> dict:
+        """Per object point: grid index, row / column, upright x / y, height, footprint cell and
+        footprint blob (connected components of the closed occupancy) -- shared by all
+        segmentations."""
+        cfg = self.config
+        h, w = obj.shape
+        idx = np.flatnonzero(obj)
+        gv, gu = np.divmod(idx, w)
+        xs, ys, hs = X.ravel()[idx], Y.ravel()[idx], hgt.ravel()[idx]
+        x0, y0 = float(xs.min()), float(ys.min())
+        cx = np.minimum(((xs - x0) / cfg.cell).astype(np.int64), 1023)
+        cy = np.minimum(((ys - y0) / cfg.cell).astype(np.int64), 1023)
+        CW = int(cx.max()) + 1
+        CH = int(cy.max()) + 1
+        cell = cy * CW + cx
+        occ = np.zeros(CW * CH, np.uint8)
+        occ[cell] = 1
+        occ = cv2.dilate(occ.reshape(CH, CW), np.ones((3, 3), np.uint8))
+        _, blab = cv2.connectedComponents(occ, connectivity=8, ltype=cv2.CV_32S)
+        V = np.stack([hs, gu, gv, xs, ys], axis=1).astype(np.float64)
+        return dict(idx=idx, cell=cell, blob=blab.ravel()[cell], V=V, grid_shape=(CH, CW))
+
+    def _hypotheses(self, grid, pd: dict, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """Candidate boxes (n,4), scores (n,) and kinds of one segmentation (not deduplicated)."""
+        cfg = self.config
+        H, W = grid.image_shape
+        sid = seg.ravel()[pd["idx"]].astype(np.int64) - 1  # CC labels of object nodes: 1..S
+        if len(sid) == 0:
+            return np.zeros((0, 4)), np.zeros((0, _NF)), []
+        S = int(sid.max()) + 1
+        cell = pd["cell"]
+        # per-segment statistics
+        npts = np.bincount(sid, minlength=S)
+        if npts.min() == 0:  # (labels are contiguous; guard anyway)
+            uniq, sid = np.unique(sid, return_inverse=True)
+            S = len(uniq)
+            npts = np.bincount(sid, minlength=S)
+
+        # per-segment min / max of (height, col, row, x, y): one sort, two reduceat calls
+        order = np.argsort(sid, kind="stable")
+        starts = np.searchsorted(sid[order], np.arange(S))
+        V = pd["V"][order]
+        mins = np.minimum.reduceat(V, starts, axis=0)
+        maxs = np.maximum.reduceat(V, starts, axis=0)
+        hmin, umin, vmin, xmin, ymin = mins.T
+        hmax, umax, vmax, xmax, ymax = maxs.T
+        # footprint overlap between segments: pairs sharing a footprint cell
+        key = np.unique(cell * S + sid)
+        kc, ks = np.divmod(key, S)
+        area = np.bincount(ks, minlength=S).astype(np.float64)
+        pa, pb = [], []
+        for k in range(1, 6):
+            same = kc[k:] == kc[:-k]
+            if not same.any():
+                break
+            pa.append(ks[:-k][same])
+            pb.append(ks[k:][same])
+        if pa:
+            pk, shared = np.unique(np.concatenate(pa) * S + np.concatenate(pb), return_counts=True)
+            p1, p2 = np.divmod(pk, S)
+            ci = np.concatenate([p1, p2])  # container candidates
+            cj = np.concatenate([p2, p1])
+            sh = np.concatenate([shared, shared]).astype(np.float64)
+            inside = sh >= cfg.contain_frac * area[cj]  # cj mostly inside ci's footprint
+            ci, cj = ci[inside], cj[inside]
+        else:
+            ci = cj = np.zeros(0, np.int64)
+        below = hmax[cj] <= hmin[ci] + cfg.below_margin
+
+        # stats columns: umin vmin umax vmax xmin ymin xmax ymax hmax (max ones negated -> all mins)
+        AT = np.stack([umin, vmin, -umax, -vmax, xmin, ymin, -xmax, -ymax, -hmax, hmin], axis=1)
+        sign = _SIGN
+
+        def union_rows(Ii, Jj):
+            """Per segment i: union of i and the segments j of the pairs (i, j)."""
+            out = AT.copy()
+            np.minimum.at(out, Ii, AT[Jj])
+            n = npts.astype(np.int64).copy()
+            np.add.at(n, Ii, npts[Jj])
+            return out * sign, n
+
+        def union_labels(lab):
+            """Union per label of ``lab`` (S,): (stats rows, counts) of the distinct labels."""
+            L = int(lab.max()) + 1
+            out = np.full((L, 10), np.inf)
+            np.minimum.at(out, lab, AT)
+            n = np.bincount(lab, weights=npts, minlength=L)
+            u = np.unique(lab)
+            return out[u] * sign, n[u]
+
+        seed = np.flatnonzero(npts >= cfg.min_points)
+        parts = []  # (stats (m, 9), npts (m,), score, kind)
+        st, n = union_rows(ci[below], cj[below])
+        parts.append((st[seed], n[seed], 0.9, "core"))
+        st, n = union_rows(ci, cj)
+        parts.append((st[seed], n[seed], 0.8, "stack"))
+        # groups: connected components of the "inside" relation
+        st, n = union_labels(_components(S, ci, cj))
+        parts.append((st, n, 0.7, "group"))
+        # blobs: connected components of the closed footprint occupancy
+        segblob = np.zeros(S, np.int64)
+        segblob[sid] = pd["blob"]
+        st, n = union_labels(segblob)
+        parts.append((st, n, 0.6, "blob"))
+        if cfg.split_length > 0:
+            parts.extend(self._equal_splits(pd, sid, S, npts, xmin, xmax, ymin, ymax))
+        return self._finalize(grid, parts)
+
+    def _equal_splits(self, pd: dict, sid, S, npts, xmin, xmax, ymin, ymax) -> list:
+        """Long segments (a row of equal dressers / night stands, fronts flush, same
+        material) cut into 2 or 3 equal parts along their footprint's main axis; parts and
+        neighbouring pairs become hypotheses."""
+        cfg = self.config
+        diag = np.hypot(xmax - xmin, ymax - ymin)
+        cand = np.flatnonzero((diag > cfg.split_length) & (npts >= 30))
+        if cand.size == 0:
+            return []
+        cand = cand[np.argsort(-npts[cand])][: cfg.split_max_segments]
+        V = pd["V"]
+        out = []
+        sign = _SIGN
+        for i in cand:
+            Vi = V[sid == i]
+            xy = Vi[:, 3:5] - Vi[:, 3:5].mean(0)
+            cxx, cxy, cyy = (xy[:, 0] ** 2).mean(), (xy[:, 0] * xy[:, 1]).mean(), (xy[:, 1] ** 2).mean()
+            a = 0.5 * np.arctan2(2 * cxy, cxx - cyy)
+            t = xy[:, 0] * np.cos(a) + xy[:, 1] * np.sin(a)
+            o = np.argsort(t)
+            ts, Vs = t[o], Vi[o]
+            m = len(ts)
+            lo, hi = ts[int(0.02 * (m - 1))], ts[int(0.98 * (m - 1))]
+            for k in (2, 3):
+                if (hi - lo) / k < 0.35:
+                    continue
+                starts = np.r_[0, np.searchsorted(ts, lo + (hi - lo) * np.arange(1, k) / k)]
+                if np.any(np.diff(np.r_[starts, m]) <= 0):
+                    continue
+                mins = np.minimum.reduceat(Vs, starts, axis=0)
+                maxs = np.maximum.reduceat(Vs, starts, axis=0)
+                st = np.stack([mins[:, 1], mins[:, 2], maxs[:, 1], maxs[:, 2], mins[:, 3], mins[:, 4],
+                               maxs[:, 3], maxs[:, 4], maxs[:, 0], mins[:, 0]], 1)
+                n = np.diff(np.r_[starts, m])
+                out.append((st, n, 0.55, f"split{k}"))
+                if k == 3:  # neighbouring pairs
+                    pair = np.minimum(st[:-1] * sign, st[1:] * sign) * sign
+                    out.append((pair, n[:-1] + n[1:], 0.5, "split3p"))
+        return out
+
+    def _finalize(self, grid, parts) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """Pixel boxes, ranking features (see :func:`_features`) and kinds of hypothesis
+        stats rows (umin vmin umax vmax xmin ymin xmax ymax hmax hmin, grid / upright
+        units); drops tiny, flat and oversized ones."""
+        cfg = self.config
+        s = grid.stride
+        H, W = grid.image_shape
+        parts = [p for p in parts if len(p[0])]
+        if not parts:
+            return np.zeros((0, 4)), np.zeros((0, _NF)), []
+        stats = np.concatenate([p[0] for p in parts])
+        npt = np.concatenate([p[1] for p in parts])
+        kinds = [p[3] for p in parts for _ in range(len(p[0]))]
+        ext = np.maximum(stats[:, 6] - stats[:, 4], stats[:, 7] - stats[:, 5])
+        pad = cfg.pad_px
+        boxes = np.stack(
+            [
+                stats[:, 0] * s - pad,
+                stats[:, 1] * s - pad,
+                (stats[:, 2] + 1) * s + pad,
+                (stats[:, 3] + 1) * s + pad + cfg.pad_bottom_px,
+            ],
+            1,
+        )
+        boxes[:, [0, 2]] = np.clip(boxes[:, [0, 2]], 0, W)
+        boxes[:, [1, 3]] = np.clip(boxes[:, [1, 3]], 0, H)
+        ok = (
+            (npt >= cfg.min_points)
+            & (stats[:, 8] >= cfg.min_height)
+            & (ext <= cfg.max_extent)
+            & (boxes[:, 2] - boxes[:, 0] >= cfg.min_box_px)
+            & (boxes[:, 3] - boxes[:, 1] >= cfg.min_box_px)
+        )
+        sel = np.flatnonzero(ok)
+        kinds = [kinds[i] for i in sel]
+        return boxes[sel], _features(stats[sel], npt[sel], boxes[sel], kinds, W, H), kinds
+
+    def _layers(self, grid, pd: dict) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """Footprint blobs split at steps of the top-height map: touching furniture of
+        different heights (a night stand beside a dresser, fronts flush) becomes separate."""
+        cfg = self.config
+        CH, CW = pd["grid_shape"]
+        cell = pd["cell"]
+        hs = pd["V"][:, 0]
+        hm = np.full(CH * CW, -1.0, np.float32)
+        np.maximum.at(hm, cell, hs.astype(np.float32))
+        hm = hm.reshape(CH, CW)
+        occ = hm >= 0
+        # close one-cell gaps (sparse far points) with the neighbours' top height
+        hd = cv2.dilate(hm, np.ones((3, 3), np.uint8))
+        hf = np.where(occ, hm, hd)
+        occf = hf >= 0
+        step = cfg.layer_step
+        img = np.zeros((2 * CH - 1, 2 * CW - 1), np.uint8)
+        img[::2, ::2] = occf
+        img[::2, 1::2] = occf[:, :-1] & occf[:, 1:] & (np.abs(hf[:, 1:] - hf[:, :-1]) <= step)
+        img[1::2, ::2] = occf[:-1, :] & occf[1:, :] & (np.abs(hf[1:, :] - hf[:-1, :]) <= step)
+        _, lab = cv2.connectedComponents(img, connectivity=4, ltype=cv2.CV_32S)
+        clab = lab[::2, ::2]
+        plab = clab.ravel()[cell]
+        st, n = _label_stats(pd["V"], plab)
+        parts = [(st, n, 0.75, "layer")]
+        # pairs of layers meeting at a step (a chair's back and seat, a bed and its headboard)
+        ul = np.unique(plab)
+        pos = np.full(int(clab.max()) + 1, -1, np.int64)
+        pos[ul] = np.arange(len(ul))
+        pairs = []
+        for a, b in ((clab[:, :-1], clab[:, 1:]), (clab[:-1, :], clab[1:, :])):
+            m = (a > 0) & (b > 0) & (a != b)
+            pairs.append(np.stack([np.minimum(a[m], b[m]), np.maximum(a[m], b[m])], 1))
+        pr = np.concatenate(pairs).astype(np.int64)
+        if len(pr):
+            big = int(pr.max()) + 1
+            pk = np.unique(pr[:, 0] * big + pr[:, 1])
+            pr = np.stack([pk // big, pk % big], 1)
+            i, j = pos[pr[:, 0]], pos[pr[:, 1]]
+            okp = (i >= 0) & (j >= 0)
+            i, j = i[okp], j[okp]
+            st2 = np.minimum(st[i] * _SIGN, st[j] * _SIGN) * _SIGN
+            parts.append((st2, n[i] + n[j], 0.65, "layer2"))
+        return self._finalize(grid, parts)
+
+
+# ---------------------------------------------------------------------------------------
+
+
+def _label_stats(V: np.ndarray, lab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per distinct label of points: stats rows (umin vmin umax vmax xmin ymin xmax ymax
+    hmax hmin) from ``V`` (n, 5) = (height, col, row, x, y), and point counts."""
+    order = np.argsort(lab, kind="stable")
+    ls = lab[order]
+    starts = np.flatnonzero(np.r_[True, ls[1:] != ls[:-1]])
+    Vs = V[order]
+    mins = np.minimum.reduceat(Vs, starts, axis=0)
+    maxs = np.maximum.reduceat(Vs, starts, axis=0)
+    n = np.diff(np.r_[starts, len(ls)])
+    st = np.stack(
+        [mins[:, 1], mins[:, 2], maxs[:, 1], maxs[:, 2], mins[:, 3], mins[:, 4],
+         maxs[:, 3], maxs[:, 4], maxs[:, 0], mins[:, 0]],
+        1,
+    )
+    return st, n
+
+
+def _components(n: int, ci: np.ndarray, cj: np.ndarray) -> np.ndarray:
+    """Connected-component label (smallest member index) of ``n`` nodes with edges (ci, cj)."""
+    lab = np.arange(n)
+    if len(ci) == 0:
+        return lab
+    for _ in range(64):
+        m = np.minimum(lab[ci], lab[cj])
+        new = lab.copy()
+        np.minimum.at(new, ci, m)
+        np.minimum.at(new, cj, m)
+        new = new[new]  # pointer jumping
+        if np.array_equal(new, lab):
+            break
+        lab = new
+    return lab
