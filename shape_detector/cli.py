@@ -23,6 +23,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "weights-info": ("shape_detector.training.weights_info", "print a weights file's format, provenance and metrics"),
     "evaluate": ("shape_detector.evaluation.cli", "evaluate weights on a held-out generated set"),
     "bench": ("shape_detector.bench", "benchmarks that print numbers (synth, network, proposals, node)"),
+    "evaluate-scene": ("shape_detector.evaluation.scene_cli",
+                       "score the scene map (final-map mAP, duplicates, id switches, jitter, grid IoU) on walk-throughs"),
     "evaluate-ar": ("shape_detector.evaluation.ar_cli",
                     "score the AR queries (ray casts, collision, paths) on generated walk-throughs"),
     "export": ("shape_detector.export.cli", "export a scene map JSON to .glb / .gltf / .obj for game engines"),
@@ -49,7 +51,8 @@ def main_config_path(args: argparse.Namespace) -> int:
 
 def _usage() -> str:
     lines = ["usage: shape-detector COMMAND [options]   (shape-detector COMMAND --help)", "", "commands:"]
-    lines += [f"  {name:<12} {help_}" for name, (_, help_) in SUBCOMMANDS.items()]
+    width = max(len(name) for name in SUBCOMMANDS)
+    lines += [f"  {name:<{width}}  {help_}" for name, (_, help_) in SUBCOMMANDS.items()]
     return "\n".join(lines)
 
 
