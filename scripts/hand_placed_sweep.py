@@ -12,11 +12,15 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import sys
+from pathlib import Path
 
 import numpy as np
 
 from shape_detector import ShapeDetector
-from shape_detector.proposals.evaluate import placed_box_scene
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))  # the ray-cast toy scenes live with the tests
+from toy_scenes import placed_box_scene  # noqa: E402
 
 SIZE = (0.53, 1.00, 1.17)  # l, w, h (m)
 

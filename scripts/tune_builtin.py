@@ -14,8 +14,6 @@ import argparse
 import itertools
 import json
 
-import numpy as np
-
 from shape_detector import ShapeDetector
 from shape_detector.classes import CLASSES
 from shape_detector.evaluation.ap import evaluate_detections

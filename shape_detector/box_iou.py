@@ -93,8 +93,8 @@ def clip_convex(subject: np.ndarray, clip: np.ndarray) -> np.ndarray:
         e0, e1 = clip[i], clip[(i + 1) % n]
         ex, ey = e1[0] - e0[0], e1[1] - e0[1]
 
-        def side(p: tuple[float, float]) -> float:
-            # > 0: left of the edge, i.e. inside a counter-clockwise polygon
+        def side(p: tuple[float, float], e0: np.ndarray = e0, ex: float = ex, ey: float = ey) -> float:
+            # > 0: left of the edge, i.e. inside a counter-clockwise polygon (edge bound per iteration)
             return ex * (p[1] - e0[1]) - ey * (p[0] - e0[0])
 
         inp, out = out, []

@@ -10,7 +10,8 @@ with the flags given on top.
 from __future__ import annotations
 
 import argparse
-from typing import Any, Callable, Iterable
+from collections.abc import Callable, Iterable
+from typing import Any
 
 from .detector_config import PRESETS, DetectorConfig, detector_specs, preset
 from .settings import Spec, check, valid_values

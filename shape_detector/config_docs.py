@@ -77,6 +77,7 @@ def render_markdown() -> str:
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``shape-detector config``: ``--preset``, ``--markdown``, ``--write``."""
     p.add_argument("--preset", default="realtime", choices=tuple(PRESETS), help="preset to print (default realtime)")
     p.add_argument("--markdown", action="store_true", help="print the Markdown table of every setting instead")
     p.add_argument("--write", action="store_true",
@@ -84,6 +85,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    """Print the preset as a ROS 2 parameters YAML or the Markdown settings table, or write both doc files."""
     if args.write:
         YAML_PATH.write_text(render_yaml("realtime"))
         MARKDOWN_PATH.write_text(render_markdown())

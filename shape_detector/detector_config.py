@@ -67,7 +67,7 @@ class DetectorConfig:
     snap_primitives: bool = setting(True, "turn nearly box-aligned primitives to the box axes and clip them to "
                                     "the box", node="dynamic")
 
-    def replace(self, **changes: Any) -> "DetectorConfig":
+    def replace(self, **changes: Any) -> DetectorConfig:
         """A copy with ``changes`` applied and validated (ValueError names every problem)."""
         return make_config(self, **changes)
 

@@ -40,6 +40,7 @@ class Cuboid:
         self.rotation = np.asarray(self.rotation, dtype=np.float64).reshape(3, 3)
 
     def to_dict(self) -> dict[str, list]:
+        """JSON-ready dict: ``center``, ``size``, ``rotation`` as lists."""
         return {
             "center": self.center.tolist(),
             "size": self.size.tolist(),
@@ -47,10 +48,11 @@ class Cuboid:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Cuboid":
+    def from_dict(cls, d: dict[str, Any]) -> Cuboid:
+        """The cuboid stored by :meth:`to_dict`."""
         return cls(np.array(d["center"]), np.array(d["size"]), np.array(d["rotation"]))
 
-    def transformed(self, R: np.ndarray, t: np.ndarray) -> "Cuboid":
+    def transformed(self, R: np.ndarray, t: np.ndarray) -> Cuboid:
         """This cuboid under ``p' = R p + t``."""
         return Cuboid(R @ self.center + t, self.size.copy(), R @ self.rotation)
 
@@ -88,6 +90,7 @@ class Object3D:
 
     @property
     def cuboid(self) -> Cuboid:
+        """The box as a :class:`Cuboid` (camera optical frame, metres)."""
         return Cuboid(self.center, self.size, self.rotation)
 
     def set_extent(self, lo: np.ndarray, hi: np.ndarray) -> None:
@@ -143,9 +146,11 @@ class GTObject:
 
     @property
     def cuboid(self) -> Cuboid:
+        """The amodal box as a :class:`Cuboid` (camera optical frame, metres)."""
         return Cuboid(self.center, self.size, self.rotation)
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict of every field (arrays as lists, parts as cuboid dicts)."""
         return {
             "class_name": self.class_name,
             "box2d": list(self.box2d),
@@ -159,7 +164,8 @@ class GTObject:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "GTObject":
+    def from_dict(cls, d: dict[str, Any]) -> GTObject:
+        """The object stored by :meth:`to_dict` (missing optional fields take their defaults)."""
         return cls(
             class_name=d["class_name"],
             box2d=tuple(d["box2d"]),
@@ -197,8 +203,10 @@ class Frame:
 
     @property
     def height(self) -> int:
+        """Image height (px)."""
         return int(self.depth.shape[0])
 
     @property
     def width(self) -> int:
+        """Image width (px)."""
         return int(self.depth.shape[1])

@@ -4,7 +4,8 @@ an error text naming the option and the accepted values, or None when the value 
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 
 def check_choice(name: str, value: Any, choices: Sequence[Any]) -> str | None:

@@ -41,6 +41,7 @@ def test_glb_round_trip(tmp_path: Path) -> None:
     sc = _scene()
     (path,) = export_scene(sc, tmp_path / "scene.glb")
     back = trimesh.load(path)
+    assert isinstance(back, trimesh.Scene)
     names = set(back.graph.nodes) - {back.graph.base_frame}
     expected = set()
     for o, n_parts in ((sc.objects[0], 5), (sc.objects[1], 2), (sc.objects[2], 1)):
@@ -51,11 +52,12 @@ def test_glb_round_trip(tmp_path: Path) -> None:
     np.testing.assert_allclose(back.bounds, _expected_bounds(sc), atol=1e-4)
     # each part is a box of its primitive's size, placed where the primitive is (y-up)
     for o in sc.objects:
-        for k, p in enumerate(o.primitives or [o]):
+        boxes = [(p.center, p.size, p.rotation) for p in o.primitives] or [(o.center, o.size, o.rotation)]
+        for k, (center, size, rotation) in enumerate(boxes):
             node = f"{o.class_name} #{o.id} part {k}"
             T, geom = back.graph[node]
             mesh = back.geometry[geom].copy().apply_transform(T)
-            want = box_corners(p.center, p.size, p.rotation) @ Z_UP_TO_Y_UP[:3, :3].T
+            want = box_corners(center, size, rotation) @ Z_UP_TO_Y_UP[:3, :3].T
             np.testing.assert_allclose(mesh.bounds, [want.min(axis=0), want.max(axis=0)], atol=1e-4)
     tree = _glb_json(path)
     assert sorted(m["name"] for m in tree["materials"]) == ["chair", "dresser", "table"]
@@ -70,6 +72,7 @@ def test_no_colliders_and_gltf(tmp_path: Path) -> None:
     sc = _scene()
     (path,) = export_scene(sc, tmp_path / "scene.gltf", colliders=False)
     back = trimesh.load(path)
+    assert isinstance(back, trimesh.Scene)
     assert not any("collider" in n for n in back.graph.nodes)
     assert len(back.geometry) == 8
     np.testing.assert_allclose(back.bounds, _expected_bounds(sc), atol=1e-4)

@@ -10,15 +10,12 @@ from msg_conversion import (
     camera_info_distortion,
     camera_info_size,
     camera_info_to_K,
-    rclpy_types,
     rosbags_types,
     scale_K,
     stamp_to_ns,
 )
 
 K0 = np.array([[525.0, 0.0, 319.5], [0.0, 520.0, 239.5], [0.0, 0.0, 1.0]])
-
-
 
 
 def test_round_trip_and_fields(types):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -16,7 +18,7 @@ from msg_conversion import (
     stamp_to_ns,
 )
 
-ENCODINGS = {  # encoding -> (dtype, channels)
+ENCODINGS: dict[str, tuple[Any, int]] = {  # encoding -> (numpy scalar type, channels)
     "rgb8": (np.uint8, 3),
     "bgr8": (np.uint8, 3),
     "rgba8": (np.uint8, 4),

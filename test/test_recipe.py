@@ -172,6 +172,38 @@ def _run_cli(args: list[str]) -> int:
     return cli.main(parser.parse_args(args))
 
 
+def _check_provenance(r: dict, out: Path) -> dict[str, str]:
+    """Check every phase's weights provenance under ``out``; returns phase name -> weights file name."""
+    files: dict[str, str] = {}
+    for ph in r["phases"]:
+        res = json.loads((out / ph["name"] / "result.json").read_text())
+        files[ph["name"]] = res["file"]
+        prov = read_blob(out / ph["name"] / res["file"])["provenance"]
+        assert PROVENANCE_KEYS <= set(prov), ph["name"]
+        assert prov["phase"] == ph["name"] and prov["recipe"] == TINY.name
+        assert prov["recipe_sha256"] == r["sha256"] and prov["reconstructed"] is False
+        assert prov["git_commit"] and prov["world_size"] == 1
+        assert prov["data"] and all({"seed", "frames", "generator_version"} <= set(d) for d in prov["data"])
+        assert {d["seed"] for d in prov["data"]} <= {s["seed"] for s in r["datasets"].values()}
+        assert prov["metrics"], ph["name"]
+        parent = ph.get("init") or ph.get("network")
+        if parent is None:
+            assert prov["parents"] == []
+        else:
+            (p,) = prov["parents"]
+            assert p["phase"] == parent and p["sha256"] == sha256_file(out / parent / files[parent])
+    return files
+
+
+def _assert_same_weights(out_a: Path, out_b: Path, files: dict[str, str]) -> None:
+    """Every phase's weights under ``out_b`` match those under ``out_a`` (same tensors, float tolerance)."""
+    for n, fname in files.items():
+        a, b = _state(out_a / n / fname), _state(out_b / n / fname)
+        assert set(a) == set(b)
+        for k in a:
+            torch.testing.assert_close(b[k].float(), a[k].float(), atol=1e-6, rtol=1e-5, msg=f"{n}: {k}")
+
+
 @pytest.mark.slow
 def test_tiny_recipe_end_to_end_is_reproducible_and_resumable(tmp_path, monkeypatch):
     """The tiny recipe (a fresh network, a phase grown from it with the rest frozen, the
@@ -188,25 +220,7 @@ def test_tiny_recipe_end_to_end_is_reproducible_and_resumable(tmp_path, monkeypa
     assert _run_cli(["--recipe", str(TINY), "--data-root", str(tmp_path / "data1"), "--out", str(out1),
                      "--device", "cpu", "--export", str(export)]) == 0
     phases = [p["name"] for p in r["phases"]]
-    files = {}
-    for ph in r["phases"]:
-        res = json.loads((out1 / ph["name"] / "result.json").read_text())
-        files[ph["name"]] = res["file"]
-        blob = read_blob(out1 / ph["name"] / res["file"])
-        prov = blob["provenance"]
-        assert PROVENANCE_KEYS <= set(prov), ph["name"]
-        assert prov["phase"] == ph["name"] and prov["recipe"] == TINY.name
-        assert prov["recipe_sha256"] == r["sha256"] and prov["reconstructed"] is False
-        assert prov["git_commit"] and prov["world_size"] == 1
-        assert prov["data"] and all({"seed", "frames", "generator_version"} <= set(d) for d in prov["data"])
-        assert {d["seed"] for d in prov["data"]} <= {s["seed"] for s in r["datasets"].values()}
-        assert prov["metrics"], ph["name"]
-        parent = ph.get("init") or ph.get("network")
-        if parent is None:
-            assert prov["parents"] == []
-        else:
-            (p,) = prov["parents"]
-            assert p["phase"] == parent and p["sha256"] == sha256_file(out1 / parent / files[parent])
+    files = _check_provenance(r, out1)
     for fname, ph in r["exports"].items():
         assert sha256_file(export / fname) == sha256_file(out1 / ph / files[ph])
 
@@ -220,11 +234,7 @@ def test_tiny_recipe_end_to_end_is_reproducible_and_resumable(tmp_path, monkeypa
 
     # the same seeds again, from data generated again: the same weights (one thread, CPU)
     run_recipe(r, out2, tmp_path / "data2", say=lambda s: None)
-    for n in phases:
-        a, b = _state(out1 / n / files[n]), _state(out2 / n / files[n])
-        assert set(a) == set(b)
-        for k in a:
-            torch.testing.assert_close(b[k].float(), a[k].float(), atol=1e-6, rtol=1e-5, msg=f"{n}: {k}")
+    _assert_same_weights(out1, out2, files)
 
     # a phase interrupted after its first epoch resumes from its checkpoint and ends where an
     # uninterrupted run does
@@ -245,10 +255,7 @@ def test_tiny_recipe_end_to_end_is_reproducible_and_resumable(tmp_path, monkeypa
     said = []
     run_recipe(r, out3, tmp_path / "data2", say=said.append)
     assert any(s.startswith(f"phase {phases[0]}: resuming") for s in said), said
-    for n in phases:
-        a, b = _state(out1 / n / files[n]), _state(out3 / n / files[n])
-        for k in a:
-            torch.testing.assert_close(b[k].float(), a[k].float(), atol=1e-6, rtol=1e-5, msg=f"{n}: {k}")
+    _assert_same_weights(out1, out3, files)
 
     # a changed phase runs again with the phases after it, not those before
     changed = json.loads(TINY.read_text())

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -20,7 +21,7 @@ def _read_anyreader(bag: Path):
     out: dict[str, list] = {}
     with AnyReader([bag]) as reader:
         for conn, t, raw in reader.messages():
-            msg = reader.deserialize(raw, conn.msgtype)
+            msg: Any = reader.deserialize(raw, conn.msgtype)
             stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
             item = {"t": t, "stamp": stamp, "frame_id": msg.header.frame_id, "msg": msg}
             if conn.topic == COLOR_TOPIC:

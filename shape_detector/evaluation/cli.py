@@ -20,6 +20,7 @@ from ..config_cli import add_detector_flags, config_from_args
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
+    """Arguments of ``shape-detector evaluate``: frame source, report directory and detector flags."""
     p.add_argument("--data", default=None, help="synthetic shard directory; omitted -> generate frames on the fly")
     p.add_argument("--frames", type=int, default=100, help="number of frames to evaluate (default 100)")
     p.add_argument("--out", default="eval_out", help="output directory for the report (default eval_out)")
@@ -50,6 +51,7 @@ def _frames(args: argparse.Namespace) -> Iterator[Any]:
 
 
 def main(args: argparse.Namespace) -> int:
+    """Run the detector over the frames and write the evaluation report to ``args.out`` (exit code 2: no data)."""
     if args.data and not Path(args.data).exists():
         print(f"shape-detector evaluate: no data directory {args.data!r}", file=sys.stderr)
         return 2

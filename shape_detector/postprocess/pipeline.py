@@ -10,8 +10,9 @@ tuning and diagnostics capture intermediate results.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -67,6 +68,7 @@ class PointFit:
     name: str = "point_fit"
 
     def __call__(self, objects: list[Object3D], ctx: PostContext) -> list[Object3D]:
+        """Boxes grown to their points (camera frame, metres)."""
         return grow_all_to_points(objects, ctx.points, self.quantile, self.min_prob)
 
 
@@ -78,6 +80,7 @@ class FloorSnap:
     name: str = "floor_snap"
 
     def __call__(self, objects: list[Object3D], ctx: PostContext) -> list[Object3D]:
+        """Boxes with their bottom moved onto the floor where it lies within ``margin`` m."""
         return snap_to_floor(objects, ctx.up, ctx.floor_height, self.margin)
 
 
@@ -90,6 +93,7 @@ class FreeSpaceCarve:
     name: str = "free_space"
 
     def __call__(self, objects: list[Object3D], ctx: PostContext) -> list[Object3D]:
+        """Boxes shrunk out of the space the depth image sees through."""
         return carve_all(objects, ctx.depth, ctx.K, ctx.points, min_prob=self.min_prob)
 
 
@@ -103,6 +107,7 @@ class Nms3D:
     name: str = "nms"
 
     def __call__(self, objects: list[Object3D], ctx: PostContext) -> list[Object3D]:
+        """The NMS survivors (rescored), or ``objects`` unchanged when the boxes were given."""
         if ctx.given_boxes:
             return objects
         return nms_3d(objects, self.iou, decay=self.decay, min_score=self.min_score)
@@ -115,6 +120,7 @@ class PrimitiveSnap:
     name: str = "primitive_snap"
 
     def __call__(self, objects: list[Object3D], ctx: PostContext) -> list[Object3D]:
+        """Objects with their nearly aligned primitives snapped to the box."""
         return snap_primitives(objects)
 
 

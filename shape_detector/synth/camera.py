@@ -16,6 +16,9 @@ from .layout import Scene, rotz
 
 @dataclass
 class Camera:
+    """A pinhole RGB-D camera: intrinsics ``K`` (3x3, px), image size (px), centre ``C`` (world, m) and ``R_wc``
+    (columns = optical axes in world)."""
+
     K: np.ndarray
     width: int
     height: int
@@ -68,6 +71,7 @@ def _blocked(scene: Scene, xy: np.ndarray, margin: float, clearance: float = 0.4
 
 def look_at_pose(C: np.ndarray, target: np.ndarray, rng: np.random.Generator, yaw_sd: float = 0.2,
                  pitch_sd: float = 0.1) -> np.ndarray:
+    """``R_wc`` looking from ``C`` towards ``target`` (world, m) with random heading / pitch / roll jitter (rad)."""
     d = target - C
     yaw = float(np.arctan2(d[1], d[0])) + rng.normal(0, yaw_sd)
     pitch = 0.75 * float(np.arctan2(d[2], np.linalg.norm(d[:2]))) + rng.normal(-0.06, pitch_sd)

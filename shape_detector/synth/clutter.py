@@ -10,8 +10,8 @@ from collections.abc import Callable
 import numpy as np
 
 from . import textures as tx
-from .furniture import Model, _frame_mat
-from .furniture import _cabinet as cabinet_parts
+from .furniture import cabinet_parts
+from .parts import Model, frame_material
 
 
 def _box(m: Model, rng: np.random.Generator) -> None:
@@ -124,7 +124,7 @@ def _rug(m: Model, rng: np.random.Generator) -> None:
 def _cabinet(m: Model, rng: np.random.Generator) -> None:
     """Unlabelled furniture: cabinets, wardrobes, tv stands."""
     l, w, h = rng.uniform(0.35, 0.65), rng.uniform(0.5, 1.6), rng.choice([rng.uniform(0.4, 0.9), rng.uniform(1.6, 2.2)])
-    cabinet_parts(m, l, w, h, rng, int(rng.integers(1, 3)), int(rng.integers(1, 4)), _frame_mat(rng))
+    cabinet_parts(m, l, w, h, rng, int(rng.integers(1, 3)), int(rng.integers(1, 4)), frame_material(rng))
     m.labelled = False
 
 
@@ -148,7 +148,7 @@ def _clothes(m: Model, rng: np.random.Generator) -> None:
 
 def _sink(m: Model, rng: np.random.Generator) -> None:
     l, w, h = rng.uniform(0.4, 0.6), rng.uniform(0.5, 1.0), rng.uniform(0.78, 0.9)
-    mat = _frame_mat(rng)
+    mat = frame_material(rng)
     m.add(-l / 2, l / 2 - 0.02, -w / 2, w / 2, 0, h - 0.04, mat)
     cer = tx.ceramic(rng)
     m.add(-l / 2, l / 2, -w / 2, w / 2, h - 0.04, h, cer)

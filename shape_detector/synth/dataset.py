@@ -43,6 +43,8 @@ def frame_seed(seed: int, index: int) -> int:
 # ----------------------------------------------------------------------------- encoding
 
 def encode_frame(frame: Frame, rgb_format: str = "png", seed: int | None = None) -> dict[str, np.ndarray]:
+    """Compressed arrays of one frame: RGB (PNG or JPEG), depth (uint16 mm PNG, 0 = invalid), instance mask (uint8
+    PNG), GT as JSON bytes."""
     if rgb_format == "png":
         ok, rgb = cv2.imencode(".png", np.ascontiguousarray(frame.rgb[:, :, ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 1])
     else:
@@ -74,6 +76,7 @@ def encode_frame(frame: Frame, rgb_format: str = "png", seed: int | None = None)
 
 
 def decode_frame(parts: dict[str, np.ndarray]) -> Frame:
+    """The frame stored by :func:`encode_frame` (depth float32 metres, NaN where invalid)."""
     rgb = cv2.imdecode(parts["rgb"], cv2.IMREAD_COLOR)[:, :, ::-1]
     mm = cv2.imdecode(parts["depth"], cv2.IMREAD_UNCHANGED)
     depth = mm.astype(np.float32) / 1000.0
@@ -162,6 +165,8 @@ def write_shards(out_dir: str | Path, num_frames: int, seed: int = 0, frames_per
 # ----------------------------------------------------------------------------- reading
 
 def shard_paths(shard_dir: str | Path) -> list[Path]:
+    """Shard files of ``shard_dir`` in generation order (its index file's order when there is one); a file is its own
+    shard."""
     p = Path(shard_dir)
     if p.is_file():
         return [p]
@@ -193,6 +198,7 @@ def read_frame(shard_dir: str | Path, index: int) -> Frame:
 
 
 def count_frames(shard_dir: str | Path) -> int:
+    """Number of frames stored in the shards of ``shard_dir``."""
     total = 0
     for path in shard_paths(shard_dir):
         with np.load(path) as z:

@@ -53,6 +53,7 @@ def make_grid(seed: int = 3, rows: int = 4, cols: int = 2, config: SynthConfig |
 
 
 def write_figure(out: str | Path, seed: int = 3, rows: int = 4, cols: int = 2) -> Path:
+    """Write the :func:`make_grid` figure for ``seed`` to the PNG ``out`` and return its path."""
     grid = make_grid(seed, rows, cols)
     save_png(out, grid)
     return Path(out)

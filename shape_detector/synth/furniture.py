@@ -10,71 +10,20 @@ headboards, drawers, books ...).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from ..classes import CLASSES, MEAN_SIZES
 from . import textures as tx
+from .parts import Model, frame_material, legs4
 from .sizes import sample_size
 from .textures import Material
 
 
-@dataclass
-class Part:
-    lo: np.ndarray  # (3,) min corner, local frame
-    hi: np.ndarray  # (3,) max corner
-    mat: Material
-
-
-@dataclass
-class Model:
-    """A furniture / clutter model: parts in its local frame."""
-
-    name: str
-    parts: list[Part] = field(default_factory=list)
-    labelled: bool = True
-    #: heights (local z) of horizontal support surfaces that can carry clutter, with their
-    #: x/y extents: (z, x0, x1, y0, y1)
-    surfaces: list[tuple[float, float, float, float, float]] = field(default_factory=list)
-
-    def add(self, x0: float, x1: float, y0: float, y1: float, z0: float, z1: float, mat: Material) -> None:
-        lo = np.array([min(x0, x1), min(y0, y1), min(z0, z1)], dtype=np.float64)
-        hi = np.array([max(x0, x1), max(y0, y1), max(z0, z1)], dtype=np.float64)
-        if np.all(hi - lo > 1e-4):
-            self.parts.append(Part(lo, hi, mat))
-            self._bounds = None
-
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Min / max corner of the parts (cached; call again after editing parts in place)."""
-        b = getattr(self, "_bounds", None)
-        if b is None or b[2] != len(self.parts):
-            lo = np.min([p.lo for p in self.parts], axis=0)
-            hi = np.max([p.hi for p in self.parts], axis=0)
-            b = self._bounds = (lo, hi, len(self.parts))
-        return b[0], b[1]
-
-
-def _frame_mat(rng: np.random.Generator) -> Material:
-    r = rng.random()
-    if r < 0.55:
-        return tx.wood(rng)
-    if r < 0.75:
-        return tx.paint(rng, bright=False)
-    if r < 0.9:
-        return tx.metal(rng)
-    return tx.colored(rng)
-
-
-def _legs4(m: Model, x0: float, x1: float, y0: float, y1: float, z0: float, z1: float, t: float, mat: Material) -> None:
-    for xa, xb in ((x0, x0 + t), (x1 - t, x1)):
-        for ya, yb in ((y0, y0 + t), (y1 - t, y1)):
-            m.add(xa, xb, ya, yb, z0, z1, mat)
-
-
 def bed(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
+    """A bed of extent ``(l, w, h)`` m: optional headboard / footboard, base on legs or a plinth, mattress, pillows,
+    blanket."""
     m = Model("bed")
-    frame = _frame_mat(rng) if rng.random() < 0.7 else tx.fabric(rng)
+    frame = frame_material(rng) if rng.random() < 0.7 else tx.fabric(rng)
     sheet = tx.fabric(rng) if rng.random() < 0.4 else tx.Material(tx.FABRIC, tuple(np.clip(rng.uniform(0.8, 0.97, 3), 0, 1)), (0, 0, 0), 0.1, 0, 1.0, float(rng.uniform(0, 99)))
     blanket = tx.fabric(rng)
     x0, x1, y0, y1 = -l / 2, l / 2, -w / 2, w / 2
@@ -89,7 +38,7 @@ def bed(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
     zb1 = rng.uniform(0.2, 0.38)
     if rng.random() < 0.5:  # legs + rails
         lh = rng.uniform(0.08, 0.2)
-        _legs4(m, x0 + tb, x1 - tf, y0, y1, 0, lh, rng.uniform(0.04, 0.08), frame)
+        legs4(m, x0 + tb, x1 - tf, y0, y1, 0, lh, rng.uniform(0.04, 0.08), frame)
         m.add(x0 + tb, x1 - tf, y0, y1, lh, zb1, frame)
     else:
         m.add(x0 + tb, x1 - tf, y0, y1, 0, zb1, frame)
@@ -127,8 +76,10 @@ def bed(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
 
 
 def table(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
+    """A table of extent ``(l, w, h)`` m: top on 4 legs (apron, lower shelf), pedestals, trestle panels or a block
+    base."""
     m = Model("table")
-    mat = _frame_mat(rng)
+    mat = frame_material(rng)
     top = mat if rng.random() < 0.7 else (tx.colored(rng) if rng.random() < 0.5 else tx.paint(rng))
     x0, x1, y0, y1 = -l / 2, l / 2, -w / 2, w / 2
     tt = rng.uniform(0.02, 0.06)
@@ -138,7 +89,7 @@ def table(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
     lt = rng.uniform(0.03, 0.08)
     if v < 0.55:
         ins = rng.uniform(0.0, 0.1) if rng.random() < 0.6 else 0.0
-        _legs4(m, x0 + ins, x1 - ins, y0 + ins, y1 - ins, 0, zt, lt, mat)
+        legs4(m, x0 + ins, x1 - ins, y0 + ins, y1 - ins, 0, zt, lt, mat)
         if ins == 0.0:
             pass
         if rng.random() < 0.5:  # apron
@@ -175,6 +126,7 @@ def table(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
 
 
 def sofa(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
+    """A sofa of extent ``(l, w, h)`` m: base, back, optional arms and legs, seat and back cushions."""
     m = Model("sofa")
     cov = tx.fabric(rng) if rng.random() < 0.75 else tx.leather(rng)
     cush = cov if rng.random() < 0.7 else tx.fabric(rng)
@@ -182,7 +134,7 @@ def sofa(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
     legh = 0.0 if rng.random() < 0.4 else rng.uniform(0.04, 0.15)
     if legh > 0:
         lm = tx.wood(rng) if rng.random() < 0.6 else tx.metal(rng)
-        _legs4(m, x0 + 0.03, x1 - 0.03, y0 + 0.03, y1 - 0.03, 0, legh, 0.04, lm)
+        legs4(m, x0 + 0.03, x1 - 0.03, y0 + 0.03, y1 - 0.03, 0, legh, 0.04, lm)
     arms = rng.random() < 0.85
     aw = rng.uniform(0.08, 0.25) if arms else 0.0
     ah = min(h, rng.uniform(0.52, 0.72)) if arms else 0.0
@@ -208,8 +160,10 @@ def sofa(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
 
 
 def chair(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
+    """A chair of extent ``(l, w, h)`` m: seat on legs / pedestal / sled base, solid, slatted or upholstered back,
+    optional arms."""
     m = Model("chair")
-    frame = _frame_mat(rng)
+    frame = frame_material(rng)
     seat_m = frame if rng.random() < 0.5 else (tx.fabric(rng) if rng.random() < 0.6 else tx.colored(rng))
     x0, x1, y0, y1 = -l / 2, l / 2, -w / 2, w / 2
     sh = min(rng.uniform(0.4, 0.5), h - 0.2)
@@ -218,7 +172,7 @@ def chair(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
     base = rng.choice(["legs", "legs", "legs", "pedestal", "sled"])
     lt = rng.uniform(0.025, 0.05)
     if base == "legs":
-        _legs4(m, x0, x1, y0, y1, 0, sh - st, lt, frame)
+        legs4(m, x0, x1, y0, y1, 0, sh - st, lt, frame)
         if rng.random() < 0.35:  # stretchers
             zs = rng.uniform(0.1, 0.2)
             m.add(x0 + lt, x1 - lt, y0, y0 + 0.02, zs, zs + 0.02, frame)
@@ -273,6 +227,7 @@ def chair(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
 
 
 def toilet(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
+    """A toilet of extent ``(l, w, h)`` m: tank, bowl, pedestal, seat ring and optional lid / flush button."""
     m = Model("toilet")
     cer = tx.ceramic(rng)
     seat = cer if rng.random() < 0.6 else (tx.colored(rng) if rng.random() < 0.5 else tx.wood(rng))
@@ -324,8 +279,9 @@ def _drawer_fronts(m: Model, xf: float, y0: float, y1: float, z0: float, z1: flo
 
 
 def desk(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
+    """A desk of extent ``(l, w, h)`` m: top on 4 legs or on side panels / drawer pedestals, optional modesty panel."""
     m = Model("desk")
-    mat = _frame_mat(rng)
+    mat = frame_material(rng)
     top = mat if rng.random() < 0.6 else tx.paint(rng)
     handle = tx.metal(rng)
     x0, x1, y0, y1 = -l / 2, l / 2, -w / 2, w / 2
@@ -334,7 +290,7 @@ def desk(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
     m.add(x0, x1, y0, y1, zt, h, top)
     v = rng.random()
     if v < 0.35:
-        _legs4(m, x0, x1, y0, y1, 0, zt, rng.uniform(0.03, 0.06), mat)
+        legs4(m, x0, x1, y0, y1, 0, zt, rng.uniform(0.03, 0.06), mat)
     else:
         pt = rng.uniform(0.02, 0.04)
         sides = rng.choice(["panels", "ped_r", "ped_l", "ped_both"])
@@ -355,15 +311,17 @@ def desk(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
     return m
 
 
-def _cabinet(m: Model, l: float, w: float, h: float, rng: np.random.Generator, rows: int, cols: int,
-             mat: Material, open_shelf: bool = False) -> None:
+def cabinet_parts(m: Model, l: float, w: float, h: float, rng: np.random.Generator, rows: int, cols: int,
+                  mat: Material, open_shelf: bool = False) -> None:
+    """Add a cabinet of extent ``(l, w, h)`` m to ``m``: plinth / legs / no base, top, and a ``rows x cols`` grid of
+    drawer fronts on its front face, or open shelving (with one drawer row when ``rows`` > 1)."""
     x0, x1, y0, y1 = -l / 2, l / 2, -w / 2, w / 2
     handle = tx.metal(rng) if rng.random() < 0.7 else tx.wood(rng)
     base = rng.choice(["plinth", "legs", "none"])
     zb = 0.0
     if base == "legs":
         zb = rng.uniform(0.06, 0.18)
-        _legs4(m, x0 + 0.01, x1 - 0.035, y0 + 0.01, y1 - 0.01, 0, zb, rng.uniform(0.03, 0.05), mat)
+        legs4(m, x0 + 0.01, x1 - 0.035, y0 + 0.01, y1 - 0.01, 0, zb, rng.uniform(0.03, 0.05), mat)
     elif base == "plinth":
         zb = rng.uniform(0.04, 0.1)
         m.add(x0 + 0.02, x1 - 0.06, y0 + 0.02, y1 - 0.02, 0, zb, mat)
@@ -388,25 +346,28 @@ def _cabinet(m: Model, l: float, w: float, h: float, rng: np.random.Generator, r
 
 
 def dresser(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
+    """A dresser of extent ``(l, w, h)`` m: a cabinet with a grid of drawers."""
     m = Model("dresser")
-    mat = _frame_mat(rng)
+    mat = frame_material(rng)
     rows = max(2, int(round(h / rng.uniform(0.18, 0.3))))
     cols = 1 if w < 0.8 else int(rng.choice([1, 2, 2, 3]) if w > 1.2 else rng.choice([1, 2]))
-    _cabinet(m, l, w, h, rng, rows, cols, mat)
+    cabinet_parts(m, l, w, h, rng, rows, cols, mat)
     return m
 
 
 def night_stand(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
+    """A night stand of extent ``(l, w, h)`` m: a small cabinet with drawers or an open shelf."""
     m = Model("night_stand")
-    mat = _frame_mat(rng)
+    mat = frame_material(rng)
     open_shelf = rng.random() < 0.3
-    _cabinet(m, l, w, h, rng, int(rng.integers(1, 4)), 1, mat, open_shelf)
+    cabinet_parts(m, l, w, h, rng, int(rng.integers(1, 4)), 1, mat, open_shelf)
     return m
 
 
 def bookshelf(l: float, w: float, h: float, rng: np.random.Generator, max_books: int = 70) -> Model:
+    """A bookshelf of extent ``(l, w, h)`` m: sides, shelves, optional back and divider, at most ``max_books`` books."""
     m = Model("bookshelf")
-    mat = _frame_mat(rng)
+    mat = frame_material(rng)
     x0, x1, y0, y1 = -l / 2, l / 2, -w / 2, w / 2
     st = rng.uniform(0.015, 0.035)
     zb = rng.uniform(0.0, 0.1)
@@ -457,6 +418,7 @@ def bookshelf(l: float, w: float, h: float, rng: np.random.Generator, max_books:
 
 
 def bathtub(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
+    """A bathtub of extent ``(l, w, h)`` m: floor, walls, optional feet, tiled apron, spout and backrest."""
     m = Model("bathtub")
     cer = tx.ceramic(rng)
     x0, x1, y0, y1 = -l / 2, l / 2, -w / 2, w / 2
@@ -465,7 +427,7 @@ def bathtub(l: float, w: float, h: float, rng: np.random.Generator) -> Model:
     zf = rng.uniform(0.08, 0.15) if feet else 0.0
     if feet:
         fm = tx.metal(rng)
-        _legs4(m, x0 + 0.05, x1 - 0.05, y0 + 0.08, y1 - 0.08, 0, zf + 0.02, 0.05, fm)
+        legs4(m, x0 + 0.05, x1 - 0.05, y0 + 0.08, y1 - 0.08, 0, zf + 0.02, 0.05, fm)
     zin = zf + rng.uniform(0.06, 0.14)
     m.add(x0, x1, y0, y1, zf, zin, cer)
     m.add(x0, x0 + t, y0, y1, zin, h, cer)

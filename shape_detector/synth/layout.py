@@ -10,7 +10,6 @@ furniture surfaces, pictures and curtains hang on the walls.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -20,7 +19,6 @@ from . import furniture as fu
 from . import textures as tx
 from .furniture import Model
 from .scene_types import Placed, Scene, Static, rotz
-from .textures import Material
 from .walls import build_walls, wall_frame
 
 
@@ -80,7 +78,7 @@ class _Placer:
     def __init__(self, sc: Scene, rng: np.random.Generator, max_objects: int, doors: list):
         self.sc, self.rng, self.max = sc, rng, max_objects
         self.floor = _Floor(sc.rx, sc.ry)
-        for k, s0, s1, z0, z1, kind in doors:  # door swing keep-out zones
+        for k, s0, s1, _z0, _z1, kind in doors:  # door swing keep-out zones
             if kind == "door":
                 o, a, n, _ = wall_frame(k, sc.rx, sc.ry)
                 c = o + 0.5 * (s0 + s1) * a + 0.45 * n

@@ -28,6 +28,9 @@ import numpy as np
 
 @dataclass
 class NoiseParams:
+    """Per-frame depth sensor settings (ranges and baseline in metres; the steps are described in the module
+    docstring)."""
+
     sigma_scale: float = 1.0
     min_range: float = 0.45
     max_range: float = 6.0
@@ -43,7 +46,8 @@ class NoiseParams:
     border: tuple[int, int, int, int] = (0, 0, 0, 0)  # invalid band (left, right, top, bottom) px, registration
 
     @classmethod
-    def sample(cls, rng: np.random.Generator) -> "NoiseParams":
+    def sample(cls, rng: np.random.Generator) -> NoiseParams:
+        """Random settings spanning typical structured-light / active-stereo sensors."""
         return cls(
             sigma_scale=float(rng.uniform(0.8, 1.6)),
             min_range=float(rng.uniform(0.35, 0.55)),

@@ -35,6 +35,9 @@ class Faces:
 
 @dataclass
 class RenderResult:
+    """Ray-cast result: depth (H,W) float32 z metres (inf = nothing), face index per pixel (-1 = nothing) and the
+    cuboids' owners / materials."""
+
     depth: np.ndarray  # (H,W) float32 z metres, inf where nothing
     face: np.ndarray  # (H,W) int32 face index, -1 where nothing
     faces: Faces
@@ -251,6 +254,8 @@ def unoccluded_area(faces: Faces, cuboids: np.ndarray, corners: np.ndarray, K: n
 
 @dataclass
 class Lighting:
+    """Scene lights in the camera frame: ambient level, point lights and an optional sun."""
+
     ambient: float
     points: list[tuple[np.ndarray, float, np.ndarray]]  # camera-frame position, intensity, rgb
     sun: tuple[np.ndarray, float] | None  # camera-frame direction of travel, intensity
@@ -428,7 +433,8 @@ class Response:
     jpeg_quality: int  # 0 = no JPEG round trip
 
     @classmethod
-    def sample(cls, rng: np.random.Generator, jpeg: bool = True) -> "Response":
+    def sample(cls, rng: np.random.Generator, jpeg: bool = True) -> Response:
+        """Random camera response; ``jpeg`` allows the JPEG round trip (60 % of frames)."""
         return cls(float(rng.uniform(0.38, 0.55)), np.array(rng.normal(1.0, 0.04, 3), np.float32),
                    float(rng.uniform(0.05, 0.3)), float(rng.uniform(0.9, 1.15)), float(rng.uniform(0.5, 1.1)),
                    float(rng.uniform(1.0, 4.0)), int(rng.integers(70, 96)) if jpeg and rng.random() < 0.6 else 0)

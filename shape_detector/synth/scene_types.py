@@ -28,12 +28,14 @@ class Placed:
     yaw: float
 
     def footprint(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """World footprint rectangle: centre (x, y) m, half extents (2,) m along the model's axes, yaw (rad)."""
         lo, hi = self.model.bounds()
         c_local = 0.5 * (lo + hi)
         c = self.pos + rotz(self.yaw) @ c_local
         return c[:2], 0.5 * (hi - lo)[:2], self.yaw
 
     def top(self) -> float:
+        """World height (z, m) of the model's top."""
         return float(self.pos[2] + self.model.bounds()[1][2])
 
     def cuboids(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[Material]]:
@@ -47,6 +49,9 @@ class Placed:
 
 @dataclass
 class Static:
+    """A static structure cuboid (wall, door, window, ...): world centre (3,) m, full size (3,) m, rotation (3,3),
+    material."""
+
     center: np.ndarray
     size: np.ndarray
     R: np.ndarray
@@ -55,6 +60,9 @@ class Static:
 
 @dataclass
 class Scene:
+    """A generated room: extent ``rx x ry`` m, ceiling height m, room type, structure, labelled objects, clutter,
+    lights."""
+
     rx: float
     ry: float
     height: float

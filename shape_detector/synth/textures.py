@@ -10,7 +10,7 @@ pixels of one kind at once (numpy gathers into cached tileable noise images).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
@@ -41,7 +41,7 @@ class Material:
 MAT_COLS = 11
 
 
-@lru_cache(maxsize=None)
+@cache
 def noise_texture(kind: str = "fractal") -> np.ndarray:
     """Tileable zero-mean, unit-std noise image (512x512 float32), fixed seed (cached).
 
@@ -170,6 +170,7 @@ def _jitter(rng: np.random.Generator, c: np.ndarray, amt: float = 0.06) -> tuple
 
 
 def wood(rng: np.random.Generator, dark: bool | None = None) -> Material:
+    """A wood material (grain), optionally darkened."""
     c = _WOODS[rng.integers(len(_WOODS))]
     if dark:
         c = c * 0.6
@@ -180,6 +181,7 @@ def wood(rng: np.random.Generator, dark: bool | None = None) -> Material:
 
 
 def paint(rng: np.random.Generator, bright: bool = True) -> Material:
+    """A flat paint material: a common wall / furniture paint, or a muted random colour when ``bright`` is False."""
     if bright or rng.random() < 0.7:
         c = _PAINTS[rng.integers(len(_PAINTS))]
     else:
@@ -195,6 +197,7 @@ def _desaturate(rng: np.random.Generator, c: np.ndarray) -> np.ndarray:
 
 
 def colored(rng: np.random.Generator, lo: float = 0.05, hi: float = 0.95, spec: float = 0.1) -> Material:
+    """A flat material of a muted random colour (channels in ``[lo, hi]``), specular at most ``spec``."""
     c = _desaturate(rng, rng.uniform(lo, hi, 3))
     c1 = tuple(float(v) for v in c)
     return Material(PLAIN, c1, c1, 0.1, float(rng.uniform(0, spec)), float(np.clip(c.mean() * 2.5, 0.15, 1)),
@@ -202,11 +205,13 @@ def colored(rng: np.random.Generator, lo: float = 0.05, hi: float = 0.95, spec: 
 
 
 def fabric(rng: np.random.Generator) -> Material:
+    """A fabric material (upholstery, bedding)."""
     c1 = _jitter(rng, _FABRICS[rng.integers(len(_FABRICS))], 0.08)
     return Material(FABRIC, c1, c1, 0.1, 0.0, float(np.clip(np.mean(c1) * 2.5, 0.2, 1)), float(rng.uniform(0, 100)))
 
 
 def leather(rng: np.random.Generator) -> Material:
+    """A leather material (dark to light browns, black, off-white), fairly shiny."""
     c = rng.choice([[0.12, 0.08, 0.06], [0.3, 0.16, 0.08], [0.08, 0.08, 0.08], [0.5, 0.35, 0.2], [0.7, 0.68, 0.62]])
     c1 = _jitter(rng, np.array(c))
     return Material(PLAIN, c1, c1, 0.1, float(rng.uniform(0.3, 0.6)), float(np.clip(np.mean(c1) * 2.0, 0.1, 0.9)),
@@ -214,6 +219,7 @@ def leather(rng: np.random.Generator) -> Material:
 
 
 def metal(rng: np.random.Generator) -> Material:
+    """A grey metal material, shiny."""
     v = rng.choice([0.1, 0.3, 0.55, 0.75])
     c1 = _jitter(rng, np.array([v, v, v * 1.02]), 0.03)
     return Material(PLAIN, c1, c1, 0.1, float(rng.uniform(0.4, 0.9)), float(rng.uniform(0.2, 0.6)),
@@ -221,6 +227,7 @@ def metal(rng: np.random.Generator) -> Material:
 
 
 def ceramic(rng: np.random.Generator) -> Material:
+    """A white ceramic material (sanitary ware), shiny."""
     v = rng.uniform(0.85, 0.97)
     c1 = _jitter(rng, np.array([v, v, v * 0.99]), 0.02)
     return Material(PLAIN, c1, c1, 0.1, float(rng.uniform(0.5, 0.9)), float(rng.uniform(0.5, 0.9)),
@@ -228,6 +235,7 @@ def ceramic(rng: np.random.Generator) -> Material:
 
 
 def floor(rng: np.random.Generator) -> Material:
+    """A floor material: wooden planks, tiles or carpet."""
     r = rng.random()
     if r < 0.4:
         w = wood(rng)
@@ -243,6 +251,7 @@ def floor(rng: np.random.Generator) -> Material:
 
 
 def wall(rng: np.random.Generator, bathroom: bool = False) -> Material:
+    """A wall material: paint, stripes, or (mostly, in bathrooms) tiles."""
     r = rng.random()
     if bathroom and r < 0.7:
         c1 = _jitter(rng, _PAINTS[rng.integers(len(_PAINTS))])
@@ -256,16 +265,19 @@ def wall(rng: np.random.Generator, bathroom: bool = False) -> Material:
 
 
 def glass(rng: np.random.Generator) -> Material:
+    """A glass material (returns no depth)."""
     c1 = _jitter(rng, np.array([0.85, 0.9, 0.95]) * rng.uniform(0.7, 1.2), 0.05)
     return Material(GLASS, c1, c1, 0.1, 0.2, 0.0, float(rng.uniform(0, 100)))
 
 
 def emissive(rng: np.random.Generator, bright: float = 1.0) -> Material:
+    """A light-emitting material (lamp shades, screens), ``bright`` scaling its level."""
     v = float(rng.uniform(0.9, 1.0)) * bright
     return Material(EMISSIVE, (v, v, v * 0.97), (v, v, v), 0.1, 0.0, 0.6, 0.0)
 
 
 def book(rng: np.random.Generator) -> Material:
+    """A book spine material: a random, partly desaturated colour."""
     c = rng.uniform(0.05, 0.9, 3)
     c = 0.45 * c + 0.55 * c.mean() * rng.uniform(0.6, 1.1)
     if rng.random() < 0.3:
