@@ -186,3 +186,31 @@ def test_depth_of_the_room_does_not_disturb_tracking():
     m = SceneMap()
     _feed(m, [[detection(*CHAIR, T0)]] * 5, depth=d)
     assert len(m.objects()) == 1
+
+
+def test_depth_in_millimetres_and_bad_depth(caplog):
+    d = render(room([CHAIR]), T0)
+    mm = np.nan_to_num(d * 1000.0, nan=0.0).astype(np.uint16)
+    a, b, c = SceneMap(), SceneMap(), SceneMap()
+    for i in range(4):
+        a.update([detection(*CHAIR, T0)], T0, d, K, stamp_ns=i)
+        b.update([detection(*CHAIR, T0)], T0, mm, K, stamp_ns=i)
+        c.update([detection(*CHAIR, T0)], T0, d[None], K, stamp_ns=i)  # not 2D: depth skipped, logged
+    assert abs(a.floor_z - b.floor_z) < 0.01
+    assert (a.grid().data == 0).sum() == pytest.approx((b.grid().data == 0).sum(), rel=0.05)
+    assert len(c.objects()) == 1 and (c.grid().data == 0).sum() == 0
+    assert "depth not used" in caplog.text
+
+
+def test_visible_share_counts_truncation_and_occlusion():
+    from shape_detector.scene.observe import visible_share
+
+    det = detection(*CHAIR, T0)
+    free = render(room([CHAIR]), T0)
+    half_hidden = render(room([CHAIR, ((1.5, 0.3, 1.0), (0.1, 0.6, 2.0), 0.0)]), T0)  # a post in front
+    full = visible_share(det.center, det.size, det.rotation, K, 160, 120, depth=free)
+    part = visible_share(det.center, det.size, det.rotation, K, 160, 120, depth=half_hidden)
+    assert full == pytest.approx(1.0)
+    assert 0.2 < part < 0.8
+    cut = detection((3.0, -2.1, 0.45), (0.5, 0.5, 0.9), 0.0, T0)  # across the image's right border
+    assert 0.0 < visible_share(cut.center, cut.size, cut.rotation, K, 160, 120) < 1.0

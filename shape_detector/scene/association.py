@@ -6,6 +6,11 @@ of the pair's mean footprint radius, plus a height-offset term, plus a class ter
 detection's class. A single frame's class flip therefore costs at most ``class_weight``
 and still matches a nearby track; two different objects side by side keep their own
 tracks because the Hungarian assignment takes the cheapest joint pairing.
+
+Two tracks are one object (:func:`duplicate_pairs`) when their boxes overlap a lot (3D
+IoU), or when one is mostly nested in the other and either their classes agree or it has
+far less evidence (a partial view of a big object); a chair pushed under a table is nested
+in it but keeps its own track.
 """
 
 from __future__ import annotations
@@ -20,6 +25,8 @@ from .tracks import Observation, Track, _CLASS_INDEX
 
 #: cost of a forbidden pair (outside the gate)
 BIG = 1e6
+#: a track with at most this share of another's fusion weight, nested in it, merges whatever its class
+WEAK_SHARE = 0.15
 
 
 def footprint_radius(size: np.ndarray) -> np.ndarray:
@@ -101,7 +108,9 @@ def duplicate_pairs(tracks: Sequence[Track], min_iou: float = 0.4, min_ios: floa
     found = []
     for i, j in zip(*np.nonzero(np.triu(near, 1))):
         iou, ios = overlap(tracks[i], tracks[j])
-        if iou >= min_iou or (ios >= min_ios and class_similarity(tracks[i], tracks[j]) >= min_same_class):
+        wi, wj = tracks[i].weight_sum, tracks[j].weight_sum
+        weak = min(wi, wj) <= WEAK_SHARE * max(wi, wj)  # a weak box nested in a strong one is part of it
+        if iou >= min_iou or (ios >= min_ios and (weak or class_similarity(tracks[i], tracks[j]) >= min_same_class)):
             found.append((max(iou, ios), int(i), int(j)))
     found.sort(reverse=True)
     return [(i, j) for _, i, j in found]

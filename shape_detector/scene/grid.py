@@ -65,7 +65,7 @@ class NavGrid:
         gx, gy = np.meshgrid(xs, ys)
         return np.stack([gx, gy], axis=-1)
 
-    def inflated(self, radius: float) -> "NavGrid":
+    def inflated(self, radius: float) -> NavGrid:
         """A copy with occupied cells grown by ``radius`` metres over free cells (unknown
         cells stay unknown)."""
         r = int(np.ceil(max(radius, 0.0) / self.resolution - 1e-9))

@@ -126,19 +126,17 @@ class SceneMap:
         output, camera optical frame; ``T_world_camera``: (4,4) or None (static camera);
         ``depth``: (H,W) metres or None; ``K``: (3,3) intrinsics of ``depth``."""
         T = self._pose(T_world_camera, up_camera)
-        if depth is not None and (K is None or np.ndim(depth) != 2):
-            log.warning("scene map: depth without a valid K or not 2D; depth not used this frame")
-            depth = None
+        depth = _depth_metres(depth, K)
         self.stamp_ns = int(stamp_ns)
         self.frames += 1
         obs = self._observations(objects, T, depth, K)
         matched = self._assign(obs)
         if depth is not None:
-            self._negative_evidence(matched, T, np.asarray(depth, dtype=np.float32), np.asarray(K, np.float64))
+            self._negative_evidence(matched, T, depth, np.asarray(K, np.float64))
         self._age(matched)
         self._merge()
         if depth is not None:
-            self.integrate_floor(T, np.asarray(depth, dtype=np.float32), np.asarray(K, np.float64))
+            self.integrate_floor(T, depth, np.asarray(K, np.float64))
         self._grid = None
 
     def objects(self) -> list[SceneObject]:
@@ -146,7 +144,7 @@ class SceneMap:
         return [self._published(t) for t in sorted(self.tracks, key=lambda t: t.id) if t.confirmed]
 
     def grid(self, inflate: bool = False) -> NavGrid:
-        """The navigation grid (inflated by ``config.inflation_radius`` when ``inflate``)."""
+        """The navigation grid (a copy; inflated by ``config.inflation_radius`` when ``inflate``)."""
         if self._grid is None:
             parts = []
             for t in self.tracks:
@@ -156,7 +154,9 @@ class SceneMap:
                 parts += [(p.center, p.size, p.rotation) for p in prims] or [(t.center, t.size, t.rotation)]
             c = self.config
             self._grid = build_grid(self.floor, parts, self.floor_z, c.agent_height, c.min_obstacle_height)
-        return self._grid.inflated(self.config.inflation_radius) if inflate else self._grid
+        g = self._grid
+        return g.inflated(self.config.inflation_radius) if inflate else NavGrid(g.resolution, g.origin.copy(),
+                                                                               g.data.copy(), g.floor_z)
 
     @property
     def floor_z(self) -> float:
@@ -176,7 +176,7 @@ class SceneMap:
         Path(path).write_text(json.dumps(self.to_json()), encoding="utf-8")
 
     @classmethod
-    def from_json(cls, path_or_dict: str | Path | dict[str, Any], config: SceneConfig | None = None) -> "SceneMap":
+    def from_json(cls, path_or_dict: str | Path | dict[str, Any], config: SceneConfig | None = None) -> SceneMap:
         """A map holding the objects (as confirmed tracks) and the free floor of a saved one;
         :meth:`update` keeps working on it."""
         d = load_dict(path_or_dict)
@@ -219,7 +219,7 @@ class SceneMap:
         for o in objects:
             if o.class_name not in CLASSES or not (o.score >= self.config.min_score):
                 continue
-            ob = to_observation(o, T, self.stamp_ns, K, size)
+            ob = to_observation(o, T, self.stamp_ns, K, size, depth=depth)
             if ob is None:
                 log.debug("scene map: skipped a malformed detection")
                 continue
@@ -317,6 +317,22 @@ class SceneMap:
         return SceneObject(id=t.id, class_name=t.class_name, score=t.score, center=t.center.copy(),
                            size=t.size.copy(), rotation=R, yaw=t.yaw, observations=t.observations,
                            first_seen_ns=t.first_seen_ns, last_seen_ns=t.last_seen_ns, primitives=prims)
+
+
+def _depth_metres(depth: np.ndarray | None, K: np.ndarray | None) -> np.ndarray | None:
+    """float32 metres (NaN invalid) from metres or uint16 millimetres; None (logged) when it
+    cannot be used: not 2D, or without a 3x3 K."""
+    if depth is None:
+        return None
+    d = np.asarray(depth)
+    if d.ndim != 2 or K is None or np.shape(K) != (3, 3):
+        log.warning("scene map: depth must be (H, W) with a 3x3 K; depth not used this frame")
+        return None
+    if d.dtype == np.uint16:
+        out = d.astype(np.float32) / 1000.0
+        out[d == 0] = np.nan
+        return out
+    return d.astype(np.float32, copy=False)
 
 
 def _track_from_object(o: SceneObject, max_weight: float) -> Track:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry import box_corners
 from ..types import Object3D
 from .tracks import Observation, class_probs_of, rotz
 
@@ -30,22 +31,30 @@ def upright_box(center: np.ndarray, size: np.ndarray, R_world: np.ndarray) -> tu
 
 
 def visible_share(center: np.ndarray, size: np.ndarray, rotation: np.ndarray, K: np.ndarray, width: int,
-                  height: int) -> float:
-    """Share (0..1) of a camera-frame box's projected 2D bounding rectangle that lies inside
-    the image (truncation by the border; 0.5 when part of the box is behind the camera)."""
-    from ..geometry import box_corners
-
-    c = box_corners(center, size, rotation)
-    if np.any(c[:, 2] <= 0.05):
-        return 0.5
-    uv = (c @ np.asarray(K, dtype=np.float64).T)
-    uv = uv[:, :2] / uv[:, 2:3]
-    x0, y0 = uv.min(0)
-    x1, y1 = uv.max(0)
-    area = max(x1 - x0, 1e-6) * max(y1 - y0, 1e-6)
-    ix = max(0.0, min(x1, width) - max(x0, 0.0))
-    iy = max(0.0, min(y1, height) - max(y0, 0.0))
-    return float(np.clip(ix * iy / area, 0.0, 1.0))
+                  height: int, n: int = 5, depth: np.ndarray | None = None, margin: float = 0.1) -> float:
+    """Share (0..1) of a camera-frame box the camera sees: of an ``n`` x ``n`` x ``n`` lattice
+    of points in the box, those in front of the camera (z > 0.1 m) that project into the
+    image (truncation by the border) and, with ``depth`` (metres, NaN invalid), whose pixel
+    does not measure something nearer than the whole box by more than ``margin`` (occlusion
+    by another object)."""
+    t = (np.arange(n) + 0.5) / n - 0.5
+    g = np.stack(np.meshgrid(t, t, t, indexing="ij"), axis=-1).reshape(-1, 3)
+    p = (g * np.asarray(size, dtype=np.float64)) @ np.asarray(rotation, dtype=np.float64).T + np.asarray(center)
+    z = p[:, 2]
+    front = z > 0.1
+    if not front.any():
+        return 0.0
+    Kf = np.asarray(K, dtype=np.float64)
+    u = np.floor(Kf[0, 0] * p[front, 0] / z[front] + Kf[0, 2] + 0.5)
+    v = np.floor(Kf[1, 1] * p[front, 1] / z[front] + Kf[1, 2] + 0.5)
+    inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    seen = int(inside.sum())
+    if depth is not None and seen:
+        near = float(np.min(box_corners(center, size, rotation)[:, 2]))
+        d = depth[v[inside].astype(np.int64), u[inside].astype(np.int64)]
+        with np.errstate(invalid="ignore"):
+            seen -= int(np.sum(d < near - margin))
+    return float(seen) / len(p)
 
 
 def observation_weight(score: float, share: float) -> float:
@@ -57,10 +66,11 @@ def observation_weight(score: float, share: float) -> float:
 
 
 def to_observation(obj: Object3D, T_world_camera: np.ndarray, stamp_ns: int, K: np.ndarray | None = None,
-                   image_size: tuple[int, int] | None = None) -> Observation | None:
+                   image_size: tuple[int, int] | None = None, depth: np.ndarray | None = None) -> Observation | None:
     """The world-frame :class:`Observation` of one detection, or None when it is malformed
-    (non-finite or non-positive size). Weight: :func:`observation_weight` (share 1 without
-    ``K`` / ``image_size`` = (height, width))."""
+    (non-finite or non-positive size). Weight: :func:`observation_weight` of the score and
+    :func:`visible_share` (1 without ``K`` / ``image_size`` = (height, width); occlusion
+    counted with ``depth``)."""
     c = np.asarray(obj.center, dtype=np.float64)
     s = np.asarray(obj.size, dtype=np.float64)
     if not (np.all(np.isfinite(c)) and np.all(np.isfinite(s)) and np.all(s > 0) and np.isfinite(obj.score)):
@@ -72,7 +82,7 @@ def to_observation(obj: Object3D, T_world_camera: np.ndarray, stamp_ns: int, K: 
     axes = rotz(yaw)  # the track's box frame (third column +z)
     share = 1.0
     if K is not None and image_size is not None:
-        share = visible_share(c, s, obj.rotation, K, image_size[1], image_size[0])
+        share = visible_share(c, s, obj.rotation, K, image_size[1], image_size[0], depth=depth)
     score = float(np.clip(obj.score, 0.0, 1.0))
     prims = []
     for p in obj.primitives:

@@ -17,10 +17,10 @@ from ..classes import CLASSES
 from ..types import Cuboid
 
 N_CLASSES = len(CLASSES)
-#: metres: an observation this far from an established track's centre counts half in its box
-OUTLIER_SCALE = 0.15
+#: metres: an observation this far from an established track's centre moves its box half as much
+OUTLIER_SCALE = 0.2
 #: fusion weight after which a track's box is established
-OUTLIER_AFTER = 0.2
+OUTLIER_AFTER = 0.3
 _CLASS_INDEX = {c: i for i, c in enumerate(CLASSES)}
 
 
@@ -113,6 +113,7 @@ class Track:
 
     @property
     def class_probs(self) -> np.ndarray:
+        """(N_CLASSES,) the class evidence normalised to sum 1 (uniform without evidence)."""
         tot = float(self.class_evidence.sum())
         return self.class_evidence / tot if tot > 0 else np.full(N_CLASSES, 1.0 / N_CLASSES)
 
@@ -138,7 +139,8 @@ class Track:
         return out
 
     @classmethod
-    def start(cls, tid: int, ob: Observation, existence: float) -> "Track":
+    def start(cls, tid: int, ob: Observation, existence: float) -> Track:
+        """A new (unconfirmed) track with id ``tid`` from its first observation."""
         return cls(id=tid, center=ob.center.copy(), size=ob.size.copy(), yaw=ob.yaw,
                    class_evidence=ob.class_probs * ob.weight, weight_sum=ob.weight, existence=existence,
                    observations=1, first_seen_ns=ob.stamp_ns, last_seen_ns=ob.stamp_ns, score_sum=ob.score,
@@ -189,7 +191,7 @@ class Track:
         self.prims_local = out
         self.prims_weight = min(self.prims_weight + w, 50.0)
 
-    def absorb(self, other: "Track") -> None:
+    def absorb(self, other: Track) -> None:
         """Merge a duplicate track into this one (weights add; this id is kept)."""
         yaw, size, k = align_yaw(other.yaw, other.size, self.yaw)
         w0, w1 = self.weight_sum, other.weight_sum

@@ -19,11 +19,13 @@ class ScenePrimitive:
     rotation: np.ndarray
 
     def to_dict(self) -> dict:
+        """The JSON form."""
         return {"center": np.asarray(self.center, float).tolist(), "size": np.asarray(self.size, float).tolist(),
                 "rotation": np.asarray(self.rotation, float).tolist()}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "ScenePrimitive":
+    def from_dict(cls, d: dict) -> ScenePrimitive:
+        """From the JSON form."""
         return cls(np.asarray(d["center"], float).reshape(3), np.asarray(d["size"], float).reshape(3),
                    np.asarray(d["rotation"], float).reshape(3, 3))
 
@@ -61,7 +63,8 @@ class SceneObject:
                 "last_seen_ns": int(self.last_seen_ns), "primitives": [p.to_dict() for p in self.primitives]}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "SceneObject":
+    def from_dict(cls, d: dict) -> SceneObject:
+        """From the JSON form (see :meth:`to_dict`)."""
         return cls(id=int(d["id"]), class_name=str(d["class"]), score=float(d["score"]),
                    center=np.asarray(d["center"], float).reshape(3), size=np.asarray(d["size"], float).reshape(3),
                    rotation=np.asarray(d["rotation"], float).reshape(3, 3), yaw=float(d["yaw"]),

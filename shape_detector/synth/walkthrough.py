@@ -54,6 +54,7 @@ class Walkthrough:
 
     @property
     def stamps_ns(self) -> list[int]:
+        """Stamp of each frame, int ns."""
         return [int(f.stamp_ns) for f in self.frames]
 
 
@@ -67,9 +68,9 @@ def _waypoints(scene: Scene, rng: np.random.Generator, n: int = 3, clearance: fl
     pts = [free[int(rng.integers(len(free)))]]
     for _ in range(n - 1):
         best, best_d = None, -1.0
-        for q in free:
-            d = float(np.linalg.norm(q - pts[-1]))
-            if d > best_d and d < 3.0 and _leg_free(scene, pts[-1], q):
+        for q in free:  # far from every earlier waypoint: the walk goes on rather than back
+            d = min(float(np.linalg.norm(q - p)) for p in pts)
+            if d > best_d and float(np.linalg.norm(q - pts[-1])) < 3.0 and _leg_free(scene, pts[-1], q):
                 best, best_d = q, d
         pts.append(best if best is not None else pts[-1])
     return np.stack(pts)

@@ -1,0 +1,75 @@
+"""Scene evaluation metrics on a small walk-through with a perfect (GT) detector."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from shape_detector.evaluation.scene_eval import SequenceData, grid_iou, run_map, score_sequences, seen_frames
+from shape_detector.synth.generate import SynthConfig
+from shape_detector.synth.walkthrough import walkthrough
+from shape_detector.types import Object3D
+
+
+@pytest.fixture(scope="module")
+def perfect() -> SequenceData:
+    wt = walkthrough(1002, 12, config=SynthConfig(width=160, height=120, noise=False, jpeg=False))
+    n = len(wt.gt_world)
+    dets, pixels, visible = [], np.zeros((12, n)), np.zeros((12, n))
+    for i, f in enumerate(wt.frames):
+        dets.append([Object3D(g.class_name, 0.99, g.center, g.size, g.rotation, primitives=list(g.parts))
+                     for g in f.objects if g.visible_fraction > 0.3])
+        for g in f.objects:
+            pixels[i, g.instance_id - 1] = (f.instance_mask == g.instance_id).sum() * 16  # as at 640 x 480
+            visible[i, g.instance_id - 1] = g.visible_fraction
+    return SequenceData(1002, dets, list(wt.poses), [f.depth for f in wt.frames], [f.K for f in wt.frames],
+                        wt.stamps_ns, wt.gt_world, pixels, visible)
+
+
+def test_perfect_detections_give_a_perfect_map(perfect):
+    res = score_sequences([perfect])
+    assert res["objects"] >= 2
+    assert res["map_mAP"]["0.25"] == pytest.approx(100.0)
+    assert res["map_mAP"]["0.5"] == pytest.approx(100.0)
+    assert res["duplicates_per_object"] == 0.0 and res["id_switches_per_object"] == 0.0
+    assert res["jitter_cm"] < 0.5
+    assert res["grid_iou"] > 0.9
+    assert res["stack_mAP"]["0.25"] <= res["map_mAP"]["0.25"] + 1e-9
+
+
+def test_grid_iou_of_the_truth_is_one_and_of_nothing_zero(perfect):
+    m, _ = run_map(perfect)
+    seen = seen_frames(perfect)
+    gts = [g for g, n in zip(perfect.gt_world, seen) if n >= 3]
+    ignored = [g for g, n in zip(perfect.gt_world, seen) if n < 3]
+    full = grid_iou(m.grid(), gts, ignored=ignored)
+    empty = m.grid()
+    empty.data[empty.data == 100] = 0
+    assert grid_iou(empty, gts, ignored=ignored) == 0.0
+    assert full > 0.9
+
+
+def test_cli_runs_and_prints_json(monkeypatch, capsys):
+    import argparse
+    import json
+
+    import shape_detector.detector as det_mod
+    from shape_detector.evaluation import scene_cli
+
+    class Fake:
+        def __init__(self, *a, **kw):
+            pass
+
+        def detect(self, rgb, depth, K, up=None):
+            return []
+
+    monkeypatch.setattr(det_mod, "ShapeDetector", Fake)
+    p = argparse.ArgumentParser()
+    scene_cli.configure_parser(p)
+    args = p.parse_args(["--sequences", "1", "--frames", "3", "--width", "96", "--height", "72", "--json", "--quiet"])
+    assert scene_cli.main(args) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["sequences"] == 1 and res["tracks"] == 0
+    assert set(res["map_mAP"]) == {"0.25", "0.5"}
+    args = p.parse_args(["--sequences", "0"])
+    assert scene_cli.main(args) == 2
