@@ -97,3 +97,20 @@ def test_scene_map_grid_from_depth_and_tracks():
     assert _value(g, 3.6, 0.0) != OCCUPIED
     inflated = m.grid(inflate=True)
     assert (inflated.data == OCCUPIED).sum() > (g.data == OCCUPIED).sum()
+
+
+def test_floor_under_the_camera_path_is_free_even_when_never_seen():
+    m = SceneMap(SceneConfig(floor_z=0.0, camera_path_radius=0.3))
+    for k, x in enumerate(np.linspace(0.0, 2.0, 5)):
+        T = np.eye(4)
+        T[:3, 3] = (x, 1.0, 1.5)
+        m.update([], T, None, None, k)
+    g = m.grid()
+    cells = g.world_to_cell(np.array([[x, y] for x in np.linspace(0.0, 2.0, 21) for y in (0.8, 1.0, 1.2)]))
+    assert all(int(g.data[r, c]) == FREE for r, c in cells)  # a free corridor along the path
+    far = g.world_to_cell(np.array([[1.0, 1.6]]))[0]
+    inside = 0 <= far[0] < g.height and 0 <= far[1] < g.width
+    assert not inside or int(g.data[far[0], far[1]]) == UNKNOWN
+    still = SceneMap(SceneConfig(floor_z=0.0, camera_path_radius=0.0))
+    still.update([], np.eye(4), None, None, 0)
+    assert not (still.grid().data == FREE).any()

@@ -84,6 +84,9 @@ class SceneConfig:
     depth_stride: int = 4
     #: depth points beyond this range are not used for the floor
     max_range: float = 6.0
+    #: floor within this radius of the camera's path counts as free (the camera, held by a person or
+    #: carried by a robot, has passed there, though it rarely sees that floor); 0 = off
+    camera_path_radius: float = 0.3
     #: two tracks with a 3D IoU above this merge
     merge_iou: float = 0.4
     #: two tracks of agreeing class whose intersection over the smaller box is above this merge
@@ -137,6 +140,9 @@ class SceneMap:
         self._merge()
         if depth is not None:
             self.integrate_floor(T, depth, np.asarray(K, np.float64))
+        if T_world_camera is not None and self.config.camera_path_radius > 0:
+            # half-cell lattice: every cell the disc covers gets a point, wherever the cell lines fall
+            self.floor.add(disc_points(T[:2, 3], self.config.camera_path_radius, 0.5 * self.config.grid_resolution))
         self._grid = None
 
     def objects(self) -> list[SceneObject]:
@@ -317,6 +323,15 @@ class SceneMap:
         return SceneObject(id=t.id, class_name=t.class_name, score=t.score, center=t.center.copy(),
                            size=t.size.copy(), rotation=R, yaw=t.yaw, observations=t.observations,
                            first_seen_ns=t.first_seen_ns, last_seen_ns=t.last_seen_ns, primitives=prims)
+
+
+def disc_points(center_xy: np.ndarray, radius: float, step: float) -> np.ndarray:
+    """(N, 2) points on a square lattice of spacing ``step`` inside the disc of ``radius`` about
+    ``center_xy`` (world x, y, metres)."""
+    r = np.arange(-radius, radius + 1e-9, step)
+    xx, yy = np.meshgrid(r, r)
+    inside = xx * xx + yy * yy <= radius * radius
+    return np.stack([xx[inside], yy[inside]], axis=1) + np.asarray(center_xy, np.float64)[:2]
 
 
 def _depth_metres(depth: np.ndarray | None, K: np.ndarray | None) -> np.ndarray | None:
