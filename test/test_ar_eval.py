@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from shape_detector.ar import ArObject, ArPrimitive, ArScene
+from shape_detector.ar import ArScene
+from shape_detector.scene.types import SceneObject, ScenePrimitive
 from shape_detector.evaluation import ar_cli
 from shape_detector.evaluation.ar_eval import STRUCTURE_ID0, evaluate_map, gt_map, seen_objects, truth_from_layout
 from shape_detector.synth.generate import SynthConfig
@@ -50,8 +51,7 @@ def test_true_scene_scores_perfectly(walk) -> None:
 def test_shifted_scene_scores_worse(walk) -> None:
     wt, truth, cams = walk
     shift = np.array([0.3, 0.0, 0.0])
-    moved = [ArObject(o.id, o.class_name, o.center + shift, o.size, o.rotation,
-                      [ArPrimitive(p.center + shift, p.size, p.rotation) for p in o.primitives])
+    moved = [SceneObject(o.id, o.class_name, 1.0, o.center + shift, o.size, o.rotation, primitives=[ScenePrimitive(p.center + shift, p.size, p.rotation) for p in o.primitives])
              for o in truth.objects.objects]
     r = evaluate_map(truth, ArScene(moved, truth.grid), cams, seen_objects(wt.frames, 50, 1),
                      np.random.default_rng(0), n_rays=500, n_points=500, n_pairs=5)

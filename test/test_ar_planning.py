@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 from ar_scenes import wall_grid
 
-from shape_detector.ar import ArGrid, ArScene, plan
+from shape_detector.ar import ArScene, plan
+from shape_detector.scene.grid import NavGrid
 from shape_detector.ar.planning import traversable, visible
 
 
-def _clearance(grid: ArGrid, path: list[tuple[float, float]], step: float = 0.01) -> float:
+def _clearance(grid: NavGrid, path: list[tuple[float, float]], step: float = 0.01) -> float:
     """Smallest distance (m) from the densely sampled path to an occupied cell's centre."""
     occ = (np.argwhere(grid.data == 100)[:, ::-1] + 0.5) * grid.resolution + grid.origin
     p = np.array(path)

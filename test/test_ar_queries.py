@@ -80,7 +80,7 @@ def test_live_scene_map() -> None:
 
 
 def test_empty_grid_plans_nothing() -> None:
-    from shape_detector.ar import ArGrid
+    from shape_detector.scene.grid import NavGrid
 
-    q = SceneQueries(ArScene([], ArGrid(0.05, np.zeros(2), np.zeros((0, 0), np.int8))))
+    q = SceneQueries(ArScene([], NavGrid(0.05, np.zeros(2), np.zeros((0, 0), np.int8))))
     assert q.plan((0.0, 0.0), (1.0, 1.0)) is None

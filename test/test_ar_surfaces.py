@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 from ar_scenes import bed, box_object, chair, table
 
-from shape_detector.ar import ArPrimitive, ArScene, surfaces
+from shape_detector.ar import ArScene, surfaces
+from shape_detector.scene.types import ScenePrimitive
 
 
 def _area(poly: np.ndarray) -> float:
@@ -55,13 +56,13 @@ def test_tilted_box_has_no_top() -> None:
 def test_level_faces_merge_and_level_neighbours_do_not_cover() -> None:
     o = table(1, (0.0, 0.0))
     # a pedestal whose top is level with the table top: one surface, not two
-    o.primitives.append(ArPrimitive(np.array([0.0, 0.0, 0.375]), np.array([0.3, 0.3, 0.75]), np.eye(3)))
+    o.primitives.append(ScenePrimitive(np.array([0.0, 0.0, 0.375]), np.array([0.3, 0.3, 0.75]), np.eye(3)))
     s = surfaces(ArScene([o]))
     assert [x.primitive_index for x in s] == [0]
     # a cushion level with the top of the base it sits in stays a seat
     c = chair(2, (0.0, 0.0))
-    c.primitives.append(ArPrimitive(np.array([0.05, 0.0, 0.43]), np.array([0.4, 0.4, 0.04]), np.eye(3)))
-    c.primitives[0] = ArPrimitive(np.array([0.0, 0.0, 0.2]), np.array([0.5, 0.5, 0.4]), np.eye(3))
+    c.primitives.append(ScenePrimitive(np.array([0.05, 0.0, 0.43]), np.array([0.4, 0.4, 0.04]), np.eye(3)))
+    c.primitives[0] = ScenePrimitive(np.array([0.0, 0.0, 0.2]), np.array([0.5, 0.5, 0.4]), np.eye(3))
     assert [(x.affordance, round(x.height, 2)) for x in surfaces(ArScene([c]))] == [("sit", 0.45)]
 
 

@@ -16,7 +16,9 @@ import numpy as np
 from . import collision, planning
 from .queries import SceneQueries
 from .rays import raycast_many
-from .scene_data import ArGrid, ArObject, ArPrimitive, ArScene
+from ..scene.grid import NavGrid
+from ..scene.types import SceneObject, ScenePrimitive
+from .scene_data import ArScene
 
 
 def _rotz(a: float) -> np.ndarray:
@@ -33,12 +35,12 @@ def bench_scene(n_objects: int = 20, room: float = 10.0, seed: int = 0) -> ArSce
         c = np.array([*rng.uniform(0.8, room - 0.8, 2), 0.0])
         R = _rotz(float(rng.uniform(-np.pi, np.pi)))
         ln, w, h = rng.uniform(0.5, 1.2), rng.uniform(0.5, 1.6), rng.uniform(0.45, 0.8)
-        prims = [ArPrimitive(c + R @ np.array([0, 0, h - 0.02]), np.array([ln, w, 0.04]), R)]
+        prims = [ScenePrimitive(c + R @ np.array([0, 0, h - 0.02]), np.array([ln, w, 0.04]), R)]
         for sx in (-1, 1):
             for sy in (-1, 1):
                 off = np.array([sx * (ln / 2 - 0.03), sy * (w / 2 - 0.03), (h - 0.04) / 2])
-                prims.append(ArPrimitive(c + R @ off, np.array([0.06, 0.06, h - 0.04]), R))
-        objects.append(ArObject(i + 1, "table", c + np.array([0, 0, h / 2]), np.array([ln, w, h]), R, prims))
+                prims.append(ScenePrimitive(c + R @ off, np.array([0.06, 0.06, h - 0.04]), R))
+        objects.append(SceneObject(i + 1, "table", 1.0, c + np.array([0, 0, h / 2]), np.array([ln, w, h]), R, primitives=prims))
     res = 0.05
     n = int(round(room / res))
     data = np.zeros((n, n), np.int8)
@@ -47,7 +49,7 @@ def bench_scene(n_objects: int = 20, room: float = 10.0, seed: int = 0) -> ArSce
         local = (centers.reshape(-1, 2) - o.center[:2]) @ o.rotation[:2, :2]
         inside = np.all(np.abs(local) <= o.size[:2] / 2, axis=1).reshape(n, n)
         data[inside] = 100
-    return ArScene(objects, ArGrid(res, np.zeros(2), data))
+    return ArScene(objects, NavGrid(res, np.zeros(2), data))
 
 
 def _median_ms(fn: Callable[[], object], repeats: int) -> float:

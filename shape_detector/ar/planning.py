@@ -27,7 +27,8 @@ from scipy import ndimage
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from .scene_data import ArGrid, as_grid
+from ..scene.grid import NavGrid
+from .scene_data import as_grid
 
 FREE_MAX = 50  # cells with values in [0, FREE_MAX) count as free (nav_msgs convention)
 UNKNOWN_POLICIES = ("blocked", "interior", "free")
@@ -46,7 +47,7 @@ def closing(mask: np.ndarray, radius_cells: float) -> np.ndarray:
     return (ndimage.distance_transform_edt(grown) > radius_cells)[pad:-pad, pad:-pad]
 
 
-def walkable(grid: ArGrid, unknown: str = "blocked") -> tuple[np.ndarray, np.ndarray]:
+def walkable(grid: NavGrid, unknown: str = "blocked") -> tuple[np.ndarray, np.ndarray]:
     """(H, W) bool walkable cells before inflation and (H, W) float step cost multipliers
     (1 on seen floor, ``UNKNOWN_COST`` on walkable unknown cells); see the module doc."""
     if unknown not in UNKNOWN_POLICIES:
@@ -61,7 +62,7 @@ def walkable(grid: ArGrid, unknown: str = "blocked") -> tuple[np.ndarray, np.nda
     return free | unk, np.where(unk, UNKNOWN_COST, 1.0)
 
 
-def traversable(grid: ArGrid, agent_radius: float, unknown: str = "blocked") -> np.ndarray:
+def traversable(grid: NavGrid, agent_radius: float, unknown: str = "blocked") -> np.ndarray:
     """(H, W) bool: walkable cells whose centre is farther than ``agent_radius`` (m) from every
     blocked cell: from the cell's area, taken as its centre's distance minus half a cell,
     since an obstacle may reach up to the edge of the cells it marks."""
@@ -113,11 +114,11 @@ def build_graph(mask: np.ndarray, cost: np.ndarray | None = None) -> CellGraph:
     return CellGraph(mask, index, cells, matrix)
 
 
-def _cell_of(grid: ArGrid, xy: np.ndarray) -> np.ndarray:
+def _cell_of(grid: NavGrid, xy: np.ndarray) -> np.ndarray:
     return np.floor((np.asarray(xy, dtype=np.float64) - grid.origin) / grid.resolution).astype(np.int64)[::-1]
 
 
-def _center(grid: ArGrid, rc: np.ndarray) -> np.ndarray:
+def _center(grid: NavGrid, rc: np.ndarray) -> np.ndarray:
     rc = np.asarray(rc)
     return grid.origin + (rc[..., ::-1] + 0.5) * grid.resolution
 
@@ -177,7 +178,7 @@ def smooth(mask: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return cells[key[out]]
 
 
-def plan_on_graph(grid: ArGrid, g: CellGraph, start_xy: np.ndarray, goal_xy: np.ndarray,
+def plan_on_graph(grid: NavGrid, g: CellGraph, start_xy: np.ndarray, goal_xy: np.ndarray,
                   snap_distance: float) -> list[tuple[float, float]] | None:
     """Shortest smoothed path on a prebuilt graph; start/goal snap to the nearest traversable
     cell within ``snap_distance`` (m). Returns world (x, y) waypoints or None."""
@@ -214,7 +215,7 @@ def plan_on_graph(grid: ArGrid, g: CellGraph, start_xy: np.ndarray, goal_xy: np.
     return [(float(x), float(y)) for x, y in pts]
 
 
-def nav_graph(grid: ArGrid, agent_radius: float, unknown: str = "blocked") -> CellGraph:
+def nav_graph(grid: NavGrid, agent_radius: float, unknown: str = "blocked") -> CellGraph:
     """The navigation graph of a grid for a disc of ``agent_radius`` m."""
     _, cost = walkable(grid, unknown)
     return build_graph(traversable(grid, agent_radius, unknown), cost)

@@ -20,7 +20,8 @@ import numpy as np
 from . import collision, planning
 from .affordances import Surface, surfaces
 from .rays import RayHit, RayHits, raycast, raycast_many
-from .scene_data import ArGrid, load_scene
+from ..scene.grid import NavGrid
+from .scene_data import load_scene
 
 
 class SceneQueries:
@@ -39,7 +40,7 @@ class SceneQueries:
         return cls(Path(path))
 
     @property
-    def grid(self) -> ArGrid | None:
+    def grid(self) -> NavGrid | None:
         """The floor grid (None: the scene has none)."""
         return self.scene.grid
 

@@ -8,7 +8,6 @@ so the same queries work live and offline.
 
 from __future__ import annotations
 
-import base64
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,50 +16,12 @@ from typing import Any
 
 import numpy as np
 
+from ..scene.grid import NavGrid
+from ..scene.json_io import grid_from_dict
+from ..scene.types import SceneObject, ScenePrimitive
+
 #: object id reported for hits on the floor plane (track ids start at 1).
 FLOOR_ID = 0
-
-
-@dataclass
-class ArPrimitive:
-    """One cuboid part, world frame: centre (3,), full size (3,), rotation (3,3) columns = axes."""
-
-    center: np.ndarray
-    size: np.ndarray
-    rotation: np.ndarray
-
-
-@dataclass
-class ArObject:
-    """The fields of ``shape_detector.scene.SceneObject`` the queries use (world frame)."""
-
-    id: int
-    class_name: str
-    center: np.ndarray
-    size: np.ndarray
-    rotation: np.ndarray
-    primitives: list[ArPrimitive] = field(default_factory=list)
-    score: float = 1.0
-
-
-@dataclass
-class ArGrid:
-    """Floor grid like ``NavGrid``: int8 cells (-1 unknown, 0 free, 100 occupied), row = y, col = x."""
-
-    resolution: float
-    origin: np.ndarray
-    data: np.ndarray
-    floor_z: float = 0.0
-
-    @property
-    def height(self) -> int:
-        """Rows (y)."""
-        return int(self.data.shape[0])
-
-    @property
-    def width(self) -> int:
-        """Columns (x)."""
-        return int(self.data.shape[1])
 
 
 @dataclass
@@ -91,27 +52,26 @@ def _arr(v: Any, shape: tuple[int, ...], what: str) -> np.ndarray:
     return a
 
 
-def _as_object(o: Any) -> ArObject:
+def _as_object(o: Any) -> SceneObject:
+    """A checked :class:`SceneObject` from anything shaped like one (finite arrays, sizes >= 0)."""
     prims = [
-        ArPrimitive(
+        ScenePrimitive(
             _arr(p.center, (3,), "primitive center"),
             np.abs(_arr(p.size, (3,), "primitive size")),
             _arr(p.rotation, (3, 3), "primitive rotation"),
         )
         for p in getattr(o, "primitives", []) or []
     ]
-    return ArObject(
-        id=int(o.id),
-        class_name=str(o.class_name),
-        center=_arr(o.center, (3,), "object center"),
-        size=np.abs(_arr(o.size, (3,), "object size")),
-        rotation=_arr(o.rotation, (3, 3), "object rotation"),
-        primitives=prims,
-        score=float(getattr(o, "score", 1.0)),
+    return SceneObject(
+        id=int(o.id), class_name=str(o.class_name), score=float(getattr(o, "score", 1.0)),
+        center=_arr(o.center, (3,), "object center"), size=np.abs(_arr(o.size, (3,), "object size")),
+        rotation=_arr(o.rotation, (3, 3), "object rotation"), yaw=float(getattr(o, "yaw", 0.0)),
+        observations=int(getattr(o, "observations", 1)), first_seen_ns=int(getattr(o, "first_seen_ns", 0)),
+        last_seen_ns=int(getattr(o, "last_seen_ns", 0)), primitives=prims,
     )
 
 
-def build_boxes(objects: Sequence[ArObject]) -> BoxSet:
+def build_boxes(objects: Sequence[SceneObject]) -> BoxSet:
     """Flatten objects to a :class:`BoxSet` (primitives, or the object's box without any)."""
     rows = [(p.center, p.size, p.rotation, o.id, i) for o in objects for i, p in enumerate(o.primitives)]
     rows += [(o.center, o.size, o.rotation, o.id, -1) for o in objects if not o.primitives]
@@ -126,54 +86,14 @@ def build_boxes(objects: Sequence[ArObject]) -> BoxSet:
     return BoxSet(centers, half, R, np.array(oid, np.int64), np.array(pidx, np.int64), centers - ext, centers + ext)
 
 
-def decode_grid_data(d: dict[str, Any]) -> np.ndarray:
-    """Cells (height, width) int8 of a JSON grid: a flat or nested list, base64 of int8, or
-    run-length pairs ``[[value, count], ...]`` (keys ``data`` or ``rle``)."""
-    h, w = int(d["height"]), int(d["width"])
-    raw = d.get("data", d.get("rle"))
-    enc = str(d.get("encoding", "")).lower()
-    if isinstance(raw, dict):  # {"encoding": ..., "data"/"runs": ...}
-        enc = str(raw.get("encoding", enc)).lower()
-        raw = raw.get("data", raw.get("runs", raw.get("rle")))
-    if isinstance(raw, str):
-        cells = np.frombuffer(base64.b64decode(raw), dtype=np.int8).copy()
-    elif "rle" in enc or "rle" in d or (isinstance(raw, list) and raw and isinstance(raw[0], (list, tuple))
-                                           and len(raw) != h):
-        runs = np.asarray(raw, dtype=np.int64).reshape(-1, 2)
-        cells = np.repeat(runs[:, 0], runs[:, 1]).astype(np.int8)
-    else:
-        cells = np.asarray(raw, dtype=np.int64).astype(np.int8).ravel()
-    if cells.size != h * w:
-        raise ValueError(f"grid data has {cells.size} cells, expected {h}x{w}")
-    return cells.reshape(h, w)
-
-
-def grid_from_json(d: dict[str, Any]) -> ArGrid:
-    """An :class:`ArGrid` from the ``grid`` entry of the scene JSON."""
-    return ArGrid(float(d["resolution"]), _arr(d["origin"], (2,), "grid origin"), decode_grid_data(d),
-                  float(d.get("floor_z", 0.0)))
-
-
-def objects_from_json(d: dict[str, Any]) -> list[ArObject]:
-    """Objects of the scene JSON (world frame)."""
-    out = []
-    for o in d.get("objects", []):
-        prims = [ArPrimitive(_arr(p["center"], (3,), "primitive center"), np.abs(_arr(p["size"], (3,), "size")),
-                             _arr(p["rotation"], (3, 3), "primitive rotation")) for p in o.get("primitives", [])]
-        out.append(ArObject(int(o["id"]), str(o["class"]), _arr(o["center"], (3,), "center"),
-                            np.abs(_arr(o["size"], (3,), "size")), _arr(o["rotation"], (3, 3), "rotation"),
-                            prims, float(o.get("score", 1.0))))
-    return out
-
-
 @dataclass
 class ArScene:
     """Objects, their boxes and the floor grid (None: no grid). ``floor_z`` (world z of the
     floor) defaults to the grid's, else to the lowest box bottom (furniture stands on the
     floor), else 0."""
 
-    objects: list[ArObject]
-    grid: ArGrid | None = None
+    objects: list[SceneObject]
+    grid: NavGrid | None = None
     frame_id: str = "odom"
     floor_z: float | None = None
     boxes: BoxSet = field(init=False)
@@ -186,19 +106,19 @@ class ArScene:
             else:
                 self.floor_z = float(self.boxes.lo[:, 2].min()) if len(self.boxes) else 0.0
 
-    def object(self, object_id: int) -> ArObject | None:
+    def object(self, object_id: int) -> SceneObject | None:
         """The object with this track id, or None."""
         return next((o for o in self.objects if o.id == object_id), None)
 
 
-def _grid_of(g: Any) -> ArGrid | None:
+def _grid_of(g: Any) -> NavGrid | None:
     if g is None:
         return None
     data = np.asarray(g.data)
     if data.ndim != 2:
         raise ValueError(f"grid data must be 2D, got shape {data.shape}")
-    return ArGrid(float(g.resolution), _arr(g.origin, (2,), "grid origin"), data.astype(np.int8),
-                  float(getattr(g, "floor_z", 0.0)))
+    return NavGrid(float(g.resolution), _arr(g.origin, (2,), "grid origin"), data.astype(np.int8),
+                   float(getattr(g, "floor_z", 0.0)))
 
 
 def load_scene(source: Any) -> ArScene:
@@ -218,8 +138,9 @@ def load_scene(source: Any) -> ArScene:
         if not isinstance(source.get("objects"), list):
             raise ValueError("not a scene map JSON document (needs an 'objects' list)")
         try:
-            grid = grid_from_json(source["grid"]) if source.get("grid") else None
-            return ArScene(objects_from_json(source), grid, str(source.get("frame_id", "odom")))
+            grid = _grid_of(grid_from_dict(source["grid"])) if source.get("grid") else None
+            objects = [_as_object(SceneObject.from_dict(o)) for o in source["objects"]]
+            return ArScene(objects, grid, str(source.get("frame_id", "odom")))
         except (KeyError, TypeError) as e:
             raise ValueError(f"scene JSON lacks or mistypes a field: {e}") from None
     if hasattr(source, "objects") and callable(source.objects):
@@ -231,10 +152,10 @@ def load_scene(source: Any) -> ArScene:
     raise ValueError(f"cannot read a scene from {type(source).__name__}")
 
 
-def as_grid(source: Any) -> ArGrid:
+def as_grid(source: Any) -> NavGrid:
     """The floor grid of a scene (anything :func:`load_scene` reads) or of a ``NavGrid``-like
     object (``resolution``, ``origin``, ``data``, ``floor_z``); ValueError when there is none."""
-    if isinstance(source, ArGrid):
+    if isinstance(source, NavGrid):
         return source
     if hasattr(source, "resolution") and hasattr(source, "data"):
         grid = _grid_of(source)

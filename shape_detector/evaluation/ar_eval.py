@@ -27,7 +27,9 @@ from ..ar.collision import collides_many, distance_to_scene
 from ..ar.planning import traversable
 from ..ar.queries import SceneQueries
 from ..ar.rays import raycast_many
-from ..ar.scene_data import FLOOR_ID, ArGrid, ArObject, ArPrimitive, ArScene
+from ..ar.scene_data import FLOOR_ID, ArScene
+from ..scene.grid import NavGrid
+from ..scene.types import SceneObject, ScenePrimitive
 
 #: object ids of non-furniture boxes in the full true scene
 STRUCTURE_ID0 = 100_000
@@ -45,16 +47,16 @@ class Truth:
     full: ArScene
     rx: float
     ry: float
-    grid: ArGrid
+    grid: NavGrid
     footprints: ArScene
 
 
-def _obj(oid: int, name: str, centers: np.ndarray, sizes: np.ndarray, rots: np.ndarray) -> ArObject:
-    prims = [ArPrimitive(np.asarray(c, float), np.asarray(s, float), np.asarray(R, float))
+def _obj(oid: int, name: str, centers: np.ndarray, sizes: np.ndarray, rots: np.ndarray) -> SceneObject:
+    prims = [ScenePrimitive(np.asarray(c, float), np.asarray(s, float), np.asarray(R, float))
              for c, s, R in zip(centers, sizes, rots)]
     lo = np.min([p.center - 0.5 * np.abs(p.rotation) @ p.size for p in prims], axis=0)
     hi = np.max([p.center + 0.5 * np.abs(p.rotation) @ p.size for p in prims], axis=0)
-    return ArObject(oid, name, 0.5 * (lo + hi), hi - lo, np.eye(3), prims)
+    return SceneObject(oid, name, 1.0, 0.5 * (lo + hi), hi - lo, np.eye(3), primitives=prims)
 
 
 def truth_from_layout(scene: Any, resolution: float = 0.05, agent_height: float = 1.8,
@@ -75,8 +77,8 @@ def truth_from_layout(scene: Any, resolution: float = 0.05, agent_height: float 
         for p in o.primitives:
             hz = 0.5 * float(np.abs(p.rotation[2]) @ p.size)
             if p.center[2] - hz < agent_height and p.center[2] + hz > min_height:
-                blocking.append(ArPrimitive(np.array([*p.center[:2], 0.0]), np.array([*p.size[:2], 1e3]), p.rotation))
-    footprints = ArScene([ArObject(1, "footprint", np.zeros(3), np.ones(3), np.eye(3), blocking)] if blocking else [])
+                blocking.append(ScenePrimitive(np.array([*p.center[:2], 0.0]), np.array([*p.size[:2], 1e3]), p.rotation))
+    footprints = ArScene([SceneObject(1, "footprint", 1.0, np.zeros(3), np.ones(3), np.eye(3), primitives=blocking)] if blocking else [])
     margin = 0.3
     nx, ny = int(np.ceil((rx + 2 * margin) / resolution)), int(np.ceil((ry + 2 * margin) / resolution))
     origin = np.array([-margin, -margin])
@@ -87,7 +89,7 @@ def truth_from_layout(scene: Any, resolution: float = 0.05, agent_height: float 
     inside = (pts[:, 0] > 0) & (pts[:, 0] < rx) & (pts[:, 1] > 0) & (pts[:, 1] < ry)
     occupied = collides_many(footprints, pts, 0.0) if blocking else np.zeros(len(pts), bool)
     data = np.where(inside & ~occupied, 0, 100).astype(np.int8).reshape(ny, nx)
-    return Truth(ArScene(objects), ArScene(objects + others), rx, ry, ArGrid(resolution, origin, data), footprints)
+    return Truth(ArScene(objects), ArScene(objects + others), rx, ry, NavGrid(resolution, origin, data), footprints)
 
 
 def ray_metric(truth: Truth, m: ArScene, cameras: list[tuple[np.ndarray, np.ndarray, int, int]], n_rays: int,
@@ -136,7 +138,7 @@ def collide_metric(truth: Truth, m: ArScene, seen_ids: set[int], n_points: int, 
             "collide_points": float(len(pts)), "collide_positive_share": float(want.mean()) if len(pts) else 0.0}
 
 
-def _free_points(mask: np.ndarray, grid: ArGrid, n: int, rng: np.random.Generator) -> np.ndarray:
+def _free_points(mask: np.ndarray, grid: NavGrid, n: int, rng: np.random.Generator) -> np.ndarray:
     cells = np.argwhere(mask)
     if len(cells) == 0:
         return np.zeros((0, 2))
@@ -144,7 +146,7 @@ def _free_points(mask: np.ndarray, grid: ArGrid, n: int, rng: np.random.Generato
     return grid.origin + (pick[:, ::-1] + rng.uniform(0.1, 0.9, (n, 2))) * grid.resolution
 
 
-def _cell_values(grid: ArGrid | None, xy: np.ndarray) -> np.ndarray:
+def _cell_values(grid: NavGrid | None, xy: np.ndarray) -> np.ndarray:
     if grid is None or grid.data.size == 0:
         return np.full(len(xy), -1)
     rc = np.floor((xy - grid.origin) / grid.resolution).astype(np.int64)[:, ::-1]

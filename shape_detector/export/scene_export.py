@@ -23,7 +23,8 @@ import numpy as np
 import trimesh
 from trimesh.visual.material import PBRMaterial
 
-from ..ar.scene_data import ArObject, ArPrimitive, ArScene, load_scene
+from ..ar.scene_data import ArScene, load_scene
+from ..scene.types import SceneObject, ScenePrimitive
 from ..classes import class_color
 
 #: world (z up) -> glTF (y up): x -> x, y -> -z, z -> y.
@@ -56,12 +57,12 @@ def _material(class_name: str) -> PBRMaterial:
                        metallicFactor=0.0, roughnessFactor=0.8)
 
 
-def object_parts(o: ArObject) -> list[ArPrimitive]:
+def object_parts(o: SceneObject) -> list[ScenePrimitive]:
     """The object's primitives, or its own box when it has none."""
-    return o.primitives or [ArPrimitive(o.center, o.size, o.rotation)]
+    return o.primitives or [ScenePrimitive(o.center, o.size, o.rotation)]
 
 
-def object_name(o: ArObject) -> str:
+def object_name(o: SceneObject) -> str:
     """The node name of an object: ``"<class> #<id>"``."""
     return f"{o.class_name} #{o.id}"
 
@@ -92,7 +93,7 @@ def build_trimesh_scene(source: Any, colliders: bool = True, y_up: bool = True) 
     return out
 
 
-def _extras(objects: dict[str, ArObject]) -> Any:
+def _extras(objects: dict[str, SceneObject]) -> Any:
     """A glTF tree post-processor adding ``extras``: ``{"class", "id", "score"}`` on object nodes
     and ``{"collider": "box", "size": [x, y, z]}`` (full size, metres) on collider boxes."""
 

@@ -47,11 +47,11 @@ class SceneObject:
     #: (3,3) columns = box axes in the world (third column = +z)
     rotation: np.ndarray
     #: radians, the box x axis about world z
-    yaw: float
+    yaw: float = 0.0
     #: number of frames the object was detected in
-    observations: int
-    first_seen_ns: int
-    last_seen_ns: int
+    observations: int = 1
+    first_seen_ns: int = 0
+    last_seen_ns: int = 0
     primitives: list[ScenePrimitive] = field(default_factory=list)
 
     def to_dict(self) -> dict:
@@ -65,9 +65,9 @@ class SceneObject:
     @classmethod
     def from_dict(cls, d: dict) -> SceneObject:
         """From the JSON form (see :meth:`to_dict`)."""
-        return cls(id=int(d["id"]), class_name=str(d["class"]), score=float(d["score"]),
+        return cls(id=int(d["id"]), class_name=str(d["class"]), score=float(d.get("score", 1.0)),
                    center=np.asarray(d["center"], float).reshape(3), size=np.asarray(d["size"], float).reshape(3),
-                   rotation=np.asarray(d["rotation"], float).reshape(3, 3), yaw=float(d["yaw"]),
-                   observations=int(d["observations"]), first_seen_ns=int(d["first_seen_ns"]),
-                   last_seen_ns=int(d["last_seen_ns"]),
+                   rotation=np.asarray(d["rotation"], float).reshape(3, 3), yaw=float(d.get("yaw", 0.0)),
+                   observations=int(d.get("observations", 1)), first_seen_ns=int(d.get("first_seen_ns", 0)),
+                   last_seen_ns=int(d.get("last_seen_ns", 0)),
                    primitives=[ScenePrimitive.from_dict(p) for p in d.get("primitives", [])])
