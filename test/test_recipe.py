@@ -15,7 +15,7 @@ import torch
 from shape_detector.model.io import read_blob
 from shape_detector.training import recipe as rcp
 from shape_detector.training.data_cache import data_identity, frustum_config, frustum_key
-from shape_detector.training.provenance import sha256_file
+from shape_detector.digests import sha256_file
 
 TINY = Path(__file__).resolve().parent / "data" / "tiny_recipe.json"
 WEIGHTS = Path(__file__).resolve().parents[1] / "shape_detector" / "weights"

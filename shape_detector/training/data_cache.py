@@ -17,7 +17,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from .provenance import dataset_identity, sha256_file, sha256_json
+from ..digests import sha256_file, sha256_json
+from .provenance import dataset_identity
 
 #: bump when frustum extraction changes what it writes for the same inputs
 FRUSTUM_CACHE_VERSION = 1

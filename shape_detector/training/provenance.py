@@ -17,7 +17,6 @@ Every weights file written by training carries a ``provenance`` dict (plain type
 from __future__ import annotations
 
 import datetime as _dt
-import hashlib
 import json
 import subprocess
 from pathlib import Path
@@ -25,23 +24,10 @@ from typing import Any
 
 import torch
 
+from ..digests import sha256_file, sha256_json
 from ..model.io import plain
 
 _PACKAGE_ROOT = Path(__file__).resolve().parents[2]
-
-
-def sha256_file(path: str | Path) -> str:
-    """Hex sha256 of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def sha256_json(obj: Any) -> str:
-    """Hex sha256 of ``obj`` as canonical JSON (sorted keys, no spaces)."""
-    return hashlib.sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 def git_commit(root: str | Path = _PACKAGE_ROOT) -> str:

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from .config import TrainConfig
-from .provenance import sha256_json
+from ..digests import sha256_json
 
 RECIPES_DIR = Path(__file__).resolve().parent / "recipes"
 _PHASE_KEYS = {"name", "kind", "comment", "init", "train_data", "val_data", "seed", "keep", "train",

@@ -26,7 +26,8 @@ from typing import Any
 
 from . import distributed as ddp
 from .data_cache import data_identity, ensure_dataset, frustum_config, frustum_key, get_frustums
-from .provenance import dataset_identity, make_provenance, sha256_file, sha256_json
+from ..digests import sha256_file, sha256_json
+from .provenance import dataset_identity, make_provenance
 from .recipe import classifier_train_config, deep_merge, phase_train_config
 
 #: bump when the training code changes what a phase computes from the same inputs

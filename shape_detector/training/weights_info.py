@@ -28,7 +28,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 def weights_info(path: str | Path) -> dict[str, Any]:
     """The description of a weights file as a plain dict (see the module docstring)."""
     from ..model.io import read_blob
-    from .provenance import sha256_file
+    from ..digests import sha256_file
 
     p = Path(path)
     blob = read_blob(p)
