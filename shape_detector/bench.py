@@ -128,36 +128,7 @@ def bench_pipeline(
           flush=True)
     out: dict[str, dict] = {}
     for mode in ("gt_boxes", "given10", "builtin"):
-        times, cpu, parts, nobj = [], [], [], []
-        det.detect(scenes[0].rgb, scenes[0].depth, scenes[0].K)  # warm-up
-        for f in scenes:
-            boxes = {"gt_boxes": [(*o.box2d, o.class_name) for o in f.objects], "given10": given_boxes(f),
-                     "builtin": None}[mode]
-            t0, c0 = time.perf_counter(), time.process_time()
-            det.detect(f.rgb, f.depth, f.K, boxes2d=boxes)
-            times.append(1e3 * (time.perf_counter() - t0))
-            cpu.append(1e3 * (time.process_time() - c0))
-            parts.append(det.last_timing)
-            nobj.append(det.last_timing.get("num_frustums", 0))
-        res = {
-            "ms_p50": float(np.median(times)),
-            "ms_p95": float(np.percentile(times, 95)),
-            "fps_p50": float(1e3 / np.median(times)),
-            "cpu_ms_p50": float(np.median(cpu)),
-            "frustums_per_frame": float(np.mean(nobj)),
-        }
-        for key in ("proposals_ms", "frustums_ms", "network_ms", "classifier_ms", "refine_ms", "post_ms"):
-            res[key + "_p50"] = float(np.median([p.get(key, 0.0) for p in parts]))
-        out[mode] = res
-        print(
-            f"pipeline[{mode}]: {res['ms_p50']:.1f} ms/frame p50 ({res['fps_p50']:.1f} fps), p95 {res['ms_p95']:.1f} ms, "
-            f"cpu {res['cpu_ms_p50']:.1f} ms, "
-            f"{res['frustums_per_frame']:.1f} frustums/frame; proposals {res['proposals_ms_p50']:.1f} ms, "
-            f"frustums {res['frustums_ms_p50']:.1f} ms, network {res['network_ms_p50']:.1f} ms, "
-            f"classifier {res['classifier_ms_p50']:.1f} ms, second pass {res['refine_ms_p50']:.1f} ms, "
-            f"post {res['post_ms_p50']:.1f} ms",
-            flush=True,
-        )
+        out[mode] = _bench_mode(det, scenes, mode)
     if peer:
         from .model.fpointnet_v1 import time_fpointnet_v1
 
@@ -180,6 +151,42 @@ def bench_pipeline(
         flush=True,
     )
     return out
+
+
+def _bench_mode(det, scenes: list, mode: str) -> dict:
+    """Median / p95 wall and CPU ms per frame of serial ``det.detect`` on ``scenes`` with the
+    boxes of ``mode`` (``gt_boxes``, ``given10`` or ``builtin``: none), and the median ms of
+    each stage; prints one line."""
+    times, cpu, parts, nobj = [], [], [], []
+    det.detect(scenes[0].rgb, scenes[0].depth, scenes[0].K)  # warm-up
+    for f in scenes:
+        boxes = {"gt_boxes": [(*o.box2d, o.class_name) for o in f.objects], "given10": given_boxes(f),
+                 "builtin": None}[mode]
+        t0, c0 = time.perf_counter(), time.process_time()
+        det.detect(f.rgb, f.depth, f.K, boxes2d=boxes)
+        times.append(1e3 * (time.perf_counter() - t0))
+        cpu.append(1e3 * (time.process_time() - c0))
+        parts.append(det.last_timing)
+        nobj.append(det.last_timing.get("num_frustums", 0))
+    res = {
+        "ms_p50": float(np.median(times)),
+        "ms_p95": float(np.percentile(times, 95)),
+        "fps_p50": float(1e3 / np.median(times)),
+        "cpu_ms_p50": float(np.median(cpu)),
+        "frustums_per_frame": float(np.mean(nobj)),
+    }
+    for key in ("proposals_ms", "frustums_ms", "network_ms", "classifier_ms", "refine_ms", "post_ms"):
+        res[key + "_p50"] = float(np.median([p.get(key, 0.0) for p in parts]))
+    print(
+        f"pipeline[{mode}]: {res['ms_p50']:.1f} ms/frame p50 ({res['fps_p50']:.1f} fps), p95 {res['ms_p95']:.1f} ms, "
+        f"cpu {res['cpu_ms_p50']:.1f} ms, "
+        f"{res['frustums_per_frame']:.1f} frustums/frame; proposals {res['proposals_ms_p50']:.1f} ms, "
+        f"frustums {res['frustums_ms_p50']:.1f} ms, network {res['network_ms_p50']:.1f} ms, "
+        f"classifier {res['classifier_ms_p50']:.1f} ms, second pass {res['refine_ms_p50']:.1f} ms, "
+        f"post {res['post_ms_p50']:.1f} ms",
+        flush=True,
+    )
+    return res
 
 
 def _bench_pipelined(det, scenes: list, split: str = "auto") -> dict:

@@ -149,16 +149,7 @@ def estimate_up(
     # table tops, the ceiling -- or a wall when the camera is steeply tilted, so try the
     # next modes too and prefer one under which a floor is found.
     best: tuple[float, GravityEstimate] | None = None
-    cands = []
-    for u1, _peak in _mode_directions(Ns, u0, cfg.max_tilt_deg, k=3):
-        u1, cnt = _axial_mean(Ns, u1)
-        if u1 @ u0 < 0:
-            u1 = -u1
-        if cnt < cfg.min_plane_points or u1 @ u0 < np.cos(np.radians(cfg.max_tilt_deg)):
-            continue
-        # Manhattan support: surfaces parallel or perpendicular to the axis
-        c = np.abs(Ns @ u1)
-        cands.append((u1, int(np.count_nonzero(c > 0.99)) + int(np.count_nonzero(c < 0.14))))
+    cands = _candidate_axes(Ns, u0, cfg)
     m_best = max((m for _, m in cands), default=0)
     for u1, m in cands:
         if m < 0.5 * m_best:  # not a Manhattan axis (a slanted surface)
@@ -178,23 +169,28 @@ def estimate_up(
     return est if est is not None else fallback
 
 
-def _from_horizontal(N, P, Pc, u1, u0, n_valid, cfg: GravityConfig) -> GravityEstimate | None:
-    """Floor (or, without one, all horizontal planes) along the candidate axis ``u1``."""
-    cos_h = np.cos(np.radians(20.0))
-    c = N @ u1
-    upf = c > cos_h  # horizontal, facing up (seen from above: floor, table tops)
-    dnf = c < -cos_h  # facing down (ceiling, undersides)
-    Pu, Pd = P[upf], P[dnf]
-    Nu, Nd = N[upf], N[dnf]
-    min_floor = max(cfg.min_floor_points, int(cfg.min_floor_frac * n_valid))
-    peaks_up = _height_peaks(Pu @ u1, 0.03, cfg.min_plane_points)
-    peaks_dn = _height_peaks(Pd @ u1, 0.03, cfg.min_plane_points)
-    tol_c = _plane_tol(Pc[:, 2])
-    max_below = max(10, int(cfg.max_below_frac * n_valid))
-    # floor: the lowest well-supported plane below the camera with (almost) nothing under
-    # it; support counts all points on it (floors are often speckled, with few normals)
-    hc = Pc @ u1
-    floor = None
+def _candidate_axes(Ns: np.ndarray, u0: np.ndarray, cfg: GravityConfig) -> list[tuple[np.ndarray, int]]:
+    """Up to 3 densest axes of the normals ``Ns`` (camera frame) within ``max_tilt_deg`` of the
+    prior ``u0``, each oriented along ``u0``, with its Manhattan support (normals parallel or
+    perpendicular to it)."""
+    cands = []
+    for u1, _peak in _mode_directions(Ns, u0, cfg.max_tilt_deg, k=3):
+        u1, cnt = _axial_mean(Ns, u1)
+        if u1 @ u0 < 0:
+            u1 = -u1
+        if cnt < cfg.min_plane_points or u1 @ u0 < np.cos(np.radians(cfg.max_tilt_deg)):
+            continue
+        # Manhattan support: surfaces parallel or perpendicular to the axis
+        c = np.abs(Ns @ u1)
+        cands.append((u1, int(np.count_nonzero(c > 0.99)) + int(np.count_nonzero(c < 0.14))))
+    return cands
+
+
+def _find_floor(peaks_up, Pu, Nu, Pc, hc, tol_c, u1, min_floor: int, max_below: int,
+                cfg: GravityConfig) -> tuple[float, int, float, float] | None:
+    """The floor along ``u1``: the lowest well-supported up-facing plane below the camera with
+    (almost) nothing under it, as ``(height (m along u1), points on it, extent 1, extent 2 (m))``;
+    support counts all points ``Pc`` on it (floors are often speckled, with few normals)."""
     for h0, _cnt in peaks_up:
         if h0 > -cfg.min_floor_below:
             break
@@ -210,9 +206,13 @@ def _from_horizontal(N, P, Pc, u1, u0, n_valid, cfg: GravityConfig) -> GravityEs
             continue
         if int(np.count_nonzero(hc < h0 - 0.1 - 2 * tol_c)) > max_below:
             continue
-        floor = (h0, nin, e1, e2)
-        break
-    ceiling = None
+        return (h0, nin, e1, e2)
+    return None
+
+
+def _find_ceiling(peaks_dn, Pc, hc, tol_c, u1, min_floor: int, max_below: int) -> float | None:
+    """Height (m along ``u1``) of the highest down-facing plane at least 0.3 m above the camera,
+    0.5 m or more across, with (almost) nothing above it; None without one."""
     for h0, _cnt in reversed(peaks_dn):
         if h0 < 0.3:
             break
@@ -221,8 +221,26 @@ def _from_horizontal(N, P, Pc, u1, u0, n_valid, cfg: GravityConfig) -> GravityEs
             continue
         e1, e2 = _extent(Pc[on][:: max(1, int(on.sum()) // 1500)], u1)
         if e2 >= 0.5 and int(np.count_nonzero(hc > h0 + 0.1 + 2 * tol_c)) <= max_below:
-            ceiling = h0
-            break
+            return h0
+    return None
+
+
+def _from_horizontal(N, P, Pc, u1, u0, n_valid, cfg: GravityConfig) -> GravityEstimate | None:
+    """Floor (or, without one, all horizontal planes) along the candidate axis ``u1``."""
+    cos_h = np.cos(np.radians(20.0))
+    c = N @ u1
+    upf = c > cos_h  # horizontal, facing up (seen from above: floor, table tops)
+    dnf = c < -cos_h  # facing down (ceiling, undersides)
+    Pu, Pd = P[upf], P[dnf]
+    Nu, Nd = N[upf], N[dnf]
+    min_floor = max(cfg.min_floor_points, int(cfg.min_floor_frac * n_valid))
+    peaks_up = _height_peaks(Pu @ u1, 0.03, cfg.min_plane_points)
+    peaks_dn = _height_peaks(Pd @ u1, 0.03, cfg.min_plane_points)
+    tol_c = _plane_tol(Pc[:, 2])
+    max_below = max(10, int(cfg.max_below_frac * n_valid))
+    hc = Pc @ u1
+    floor = _find_floor(peaks_up, Pu, Nu, Pc, hc, tol_c, u1, min_floor, max_below, cfg)
+    ceiling = _find_ceiling(peaks_dn, Pc, hc, tol_c, u1, min_floor, max_below)
     if floor is not None:
         h0, nin, e1, e2 = floor
         un, hh, sel = _fit_band(Pu, u1, h0)

@@ -101,7 +101,7 @@ def _height_peaks(h: np.ndarray, bin_m: float, min_count: int) -> list[tuple[flo
     sm = cnt.copy()
     sm[1:] += cnt[:-1]
     sm[:-1] += cnt[1:]
-    peaks = []
+    peaks: list[tuple[float, int]] = []
     for i in np.nonzero(sm >= min_count)[0]:
         left = sm[i - 1] if i > 0 else -1
         right = sm[i + 1] if i + 1 < nb else -1

@@ -18,16 +18,16 @@ import numpy as np
 G = 9.80665
 
 
-def quaternion_to_matrix(q: Sequence[float]) -> np.ndarray:
+def quaternion_to_matrix(q: Sequence[float] | np.ndarray) -> np.ndarray:
     """Rotation matrix of a quaternion given as ``(x, y, z, w)`` (ROS order); normalised
     first. Raises ValueError for a zero-length or non-finite quaternion."""
-    q = np.asarray(q, dtype=np.float64).reshape(-1)
-    if q.shape != (4,):
-        raise ValueError(f"quaternion must have 4 values (x, y, z, w), got {q.size}")
-    n = float(np.linalg.norm(q))
+    qa = np.asarray(q, dtype=np.float64).reshape(-1)
+    if qa.shape != (4,):
+        raise ValueError(f"quaternion must have 4 values (x, y, z, w), got {qa.size}")
+    n = float(np.linalg.norm(qa))
     if not np.isfinite(n) or n < 1e-9:
-        raise ValueError(f"quaternion must be finite and non-zero, got {q.tolist()}")
-    x, y, z, w = q / n
+        raise ValueError(f"quaternion must be finite and non-zero, got {qa.tolist()}")
+    x, y, z, w = qa / n
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
@@ -82,6 +82,7 @@ class ImuGravityFilter:
             self.R = quaternion_to_matrix(arr)
 
     def reset(self) -> None:
+        """Forget the filtered vector, the last stamp and the sample count (e.g. after a time jump)."""
         self._acc = None
         self._last_stamp = None
         self.samples = 0
@@ -115,6 +116,7 @@ class ImuGravityFilter:
 
     @property
     def ready(self) -> bool:
+        """Whether at least ``min_samples`` accepted samples have been filtered."""
         return self._acc is not None and self.samples >= self.min_samples
 
     @property
@@ -130,4 +132,5 @@ class ImuGravityFilter:
 
     @property
     def last_stamp_ns(self) -> int | None:
+        """Stamp (int ns) of the last accepted sample, or None."""
         return self._last_stamp

@@ -204,6 +204,25 @@ class MarkerListener:
         self.node.destroy_node()
 
 
+def _receive_stats(rec: list, sent: int, wall: float) -> dict[str, Any]:
+    """Frame counts, output frames/s (between the first and last arrival), input frames/s over
+    ``wall`` s and stamp->arrival latency p50 / p95 / max (ms) of the received
+    ``(arrival ns, stamp ns, ...)`` tuples ``rec`` (stamp <= 0: unknown, no latency)."""
+    arrivals = np.array([r[0] for r in rec], dtype=np.float64)
+    lat = np.array([(r[0] - r[1]) / 1e6 for r in rec if r[1] > 0])
+    fps = (len(rec) - 1) / ((arrivals[-1] - arrivals[0]) / 1e9) if len(rec) > 1 else 0.0
+    return dict(
+        frames_sent=sent,
+        frames_received=len(rec),
+        frames_dropped=sent - len(rec),
+        fps=float(fps),
+        input_fps=float(sent / wall) if wall > 0 else 0.0,
+        latency_p50_ms=float(np.percentile(lat, 50)) if lat.size else float("nan"),
+        latency_p95_ms=float(np.percentile(lat, 95)) if lat.size else float("nan"),
+        latency_max_ms=float(lat.max()) if lat.size else float("nan"),
+    )
+
+
 def bench_node(
     bag: str | Path | None = None,
     weights: str | None = None,
@@ -256,20 +275,7 @@ def bench_node(
             sent += s.per_topic.get(sel.image, 0)
         listener.wait_quiet(sent, timeout=60.0)
         wall = time.perf_counter() - t0
-        rec = list(listener.received)
-        arrivals = np.array([r[0] for r in rec], dtype=np.float64)
-        lat = np.array([(r[0] - r[1]) / 1e6 for r in rec if r[1] > 0])
-        fps = (len(rec) - 1) / ((arrivals[-1] - arrivals[0]) / 1e9) if len(rec) > 1 else 0.0
-        result.update(
-            frames_sent=sent,
-            frames_received=len(rec),
-            frames_dropped=sent - len(rec),
-            fps=float(fps),
-            input_fps=float(sent / wall) if wall > 0 else 0.0,
-            latency_p50_ms=float(np.percentile(lat, 50)) if lat.size else float("nan"),
-            latency_p95_ms=float(np.percentile(lat, 95)) if lat.size else float("nan"),
-            latency_max_ms=float(lat.max()) if lat.size else float("nan"),
-        )
+        result.update(_receive_stats(list(listener.received), sent, wall))
     finally:
         # the child first: whatever happens to this process' ROS teardown, it is reaped
         rc = stop_node(proc)

@@ -8,7 +8,8 @@ so the detector builds no proposer.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 #: name -> builder(config) of a proposer called as ``proposer(depth, K, up=, rgb=)``
 _BUILDERS: dict[str, Callable[[Any], Any]] = {}

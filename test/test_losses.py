@@ -85,7 +85,7 @@ def test_tiny_overfit_all_losses_decrease():
     idx = torch.arange(data.n)
     b = data.batch(idx, TrainConfig(), augment=False, one_hot_mode="given")
     hist = []
-    for step in range(60):
+    for _ in range(60):
         net.train()
         out = net(b["points"], b["one_hot"])
         L = compute_losses(out, b, net.mean_sizes, "box,shape,cls", l_nearest=1)

@@ -81,7 +81,8 @@ def bench_network(
     for c in counts:
         fr = _fake_frustums(int(c), n_pts, rng)
         cls = [i % pred.config.num_classes for i in range(int(c))]
-        times, cpu = _timed(lambda: pred.predict(fr, cls), warmup, repeats, dev == "cuda" and pred.backend == "torch")
+        times, cpu = _timed(lambda fr=fr, cls=cls: pred.predict(fr, cls), warmup, repeats,
+                            dev == "cuda" and pred.backend == "torch")
         med = float(np.median(times))
         results[int(c)] = {"median_ms": med, "mean_ms": float(np.mean(times)), "fps": 1000.0 / med,
                            "cpu_ms": float(np.median(cpu))}
@@ -95,19 +96,7 @@ def bench_network(
     builtin = _bench_builtin_path(pred, counts, n_pts, rng, repeats, warmup, verbose, trace)
     beside = {}
     if dev == "cpu":
-        c = int(max(counts))
-        fr = _fake_frustums(c, n_pts, rng)
-        cls = [i % pred.config.num_classes for i in range(c)]
-        for name in ("onnxruntime", "traced", "eager"):  # one worker, as in the node's pipeline
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                p = FrustumPredictor(weights, device=device, workers=1, precision=precision, trace=name != "eager",
-                                     backend="onnxruntime" if name == "onnxruntime" else "torch")
-            beside[name] = float(np.median(_beside_busy_python(lambda: p.predict(fr, cls), warmup=2, repeats=3)))
-        if verbose:
-            print(f"network beside a busy pure-Python thread, {c} objects/frame, 1 worker: onnxruntime "
-                  f"{beside['onnxruntime']:.1f} ms, traced {beside['traced']:.1f} ms, "
-                  f"eager {beside['eager']:.1f} ms (the eager forward waits for the GIL at every op)")
+        beside = _bench_beside_python(pred, counts, n_pts, rng, weights, device, precision, verbose)
     return {
         "builtin_path": builtin,
         "beside_python": beside,
@@ -119,6 +108,31 @@ def bench_network(
         "num_points": n_pts,
         "results": results,
     }
+
+
+def _bench_beside_python(pred, counts: Sequence[int], n_pts: int, rng: np.random.Generator,
+                         weights: str | Path | None, device: str, precision: str, verbose: bool) -> dict[str, float]:
+    """Median ms per frame of the largest count beside a busy pure-Python thread, for a one-worker
+    predictor per runtime (``onnxruntime``, ``traced``, ``eager``), as in the node's pipeline."""
+    import warnings
+
+    from .predictor import FrustumPredictor
+
+    beside = {}
+    c = int(max(counts))
+    fr = _fake_frustums(c, n_pts, rng)
+    cls = [i % pred.config.num_classes for i in range(c)]
+    for name in ("onnxruntime", "traced", "eager"):  # one worker, as in the node's pipeline
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            p = FrustumPredictor(weights, device=device, workers=1, precision=precision, trace=name != "eager",
+                                 backend="onnxruntime" if name == "onnxruntime" else "torch")
+        beside[name] = float(np.median(_beside_busy_python(lambda p=p: p.predict(fr, cls), warmup=2, repeats=3)))
+    if verbose:
+        print(f"network beside a busy pure-Python thread, {c} objects/frame, 1 worker: onnxruntime "
+              f"{beside['onnxruntime']:.1f} ms, traced {beside['traced']:.1f} ms, "
+              f"eager {beside['eager']:.1f} ms (the eager forward waits for the GIL at every op)")
+    return beside
 
 
 def _timed(run, warmup: int, repeats: int, cuda: bool) -> tuple[list[float], list[float]]:
@@ -182,7 +196,7 @@ def _bench_builtin_path(
     for c in counts:
         fr = _fake_frustums(int(c), n_pts, rng)
 
-        def run() -> None:
+        def run(fr: list[Frustum] = fr) -> None:
             # as the detector: features reused below, shapes left to the second pass
             first = pred.predict(fr, [None] * len(fr), keep_features=True, shapes=False)
             clf.probabilities(*frame_inputs(fr, first, [(0, 0, 100, 100)] * len(fr), [1.0] * len(fr), (640, 480), 1.3,

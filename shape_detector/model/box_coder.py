@@ -26,6 +26,7 @@ _CORNER_SIGNS = torch.from_numpy(CORNER_SIGNS).float()
 
 
 def box_head_channels(nh: int, ns: int) -> int:
+    """Width of the box-head output for ``nh`` heading bins and ``ns`` size clusters: 3 + 2NH + 4NS."""
     return 3 + 2 * nh + 4 * ns
 
 

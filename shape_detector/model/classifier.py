@@ -61,10 +61,10 @@ class ProposalClassifier(nn.Module):
         return self.head(torch.cat([feat, self.global_bn(globals_)], 1))
 
     @torch.no_grad()
-    def fuse_batchnorm(self) -> "ProposalClassifier":
+    def fuse_batchnorm(self) -> ProposalClassifier:
         """Fold the BatchNorm of every per-point and head layer into its linear layer (eval
-        mode only; the module can no longer be trained or saved as weights): 25 candidates
-        10.6 -> 4.7 ms on one thread, logits within 1e-4."""
+        mode only; the module can no longer be trained or saved as weights); logits agree with
+        the unfolded module to about 1e-4."""
         from .pointnet import PointLinear
 
         if self.training:

@@ -3,8 +3,9 @@ per-candidate features (see :mod:`shape_detector.model.classifier`)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -39,11 +40,13 @@ class ClassifierConfig:
     border_px: float = 3.0
 
     def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able dict (tuples as lists); :meth:`from_dict` reads it back."""
         d = asdict(self)
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any] | None) -> "ClassifierConfig":
+    def from_dict(cls, d: dict[str, Any] | None) -> ClassifierConfig:
+        """Config from a dict of overrides of the defaults; unknown keys are refused (ValueError)."""
         d = dict(d or {})
         names = {f.name for f in fields(cls)}
         unknown = set(d) - names

@@ -57,14 +57,15 @@ class ClassifierPredictor:
 
     @classmethod
     def from_file(cls, path: str | Path, precision: str = "fp32", trace: bool = True, backend: str = "auto",
-                  num_threads: int = 1) -> "ClassifierPredictor":
+                  num_threads: int = 1) -> ClassifierPredictor:
         """A predictor for a classifier weights file. Under onnxruntime, the graph cached for
         the file's sha256 is used without importing torch; missing, it is exported first."""
-        from .onnx_export import GRAPH_FILES, _complete, cache_dir, export_classifier_graph, file_digest
+        from ..digests import sha256_file
+        from .onnx_export import GRAPH_FILES, _complete, cache_dir, export_classifier_graph
 
         if resolve_backend(backend, precision, trace) == "onnxruntime":
             try:
-                folder = cache_dir("classifier-file", file_digest(path))
+                folder = cache_dir("classifier-file", sha256_file(path))
                 info = _complete(folder, ("classifier",))
                 if info is None:
                     from .classifier import load_classifier
@@ -83,7 +84,11 @@ class ClassifierPredictor:
 
     @property
     def config(self) -> ClassifierConfig:
-        return self._config if self.model is None else self.model.config
+        """The classifier's configuration (of the torch model, or read with the onnxruntime graph)."""
+        if self.model is not None:
+            return self.model.config
+        assert self._config is not None, "classifier without a model or a cached graph's config"
+        return self._config
 
     def warm_up(self, max_batch: int = 1) -> None:
         """Trace the graphs and build the kernels for every batch of 1 to ``max_batch``

@@ -107,6 +107,7 @@ class ModelConfig:
 
     @property
     def in_channels(self) -> int:
+        """Per-point input channels: xyz (m, frame F), plus rgb in [0, 1] with ``use_color``."""
         return 6 if self.use_color else 3
 
     def to_dict(self) -> dict[str, Any]:
@@ -118,7 +119,7 @@ class ModelConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any] | None) -> "ModelConfig":
+    def from_dict(cls, d: dict[str, Any] | None) -> ModelConfig:
         """Config from a dict of overrides of the defaults; unknown keys are refused."""
         d = dict(d or {})
         names = {f.name: f for f in fields(cls)}

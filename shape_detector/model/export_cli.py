@@ -31,7 +31,8 @@ def export_all(out: str | Path, weights: str | Path | None = None, classifier: s
     FileNotFoundError for a missing weights file."""
     from .classifier import load_classifier
     from .io import load_weights
-    from .onnx_export import META_FILE, export_classifier_graph, export_frustum_graphs, file_digest
+    from ..digests import sha256_file
+    from .onnx_export import META_FILE, export_classifier_graph, export_frustum_graphs
     from .predictor import default_weights_path
 
     out = Path(out)
@@ -47,13 +48,13 @@ def export_all(out: str | Path, weights: str | Path | None = None, classifier: s
             cpath = None  # no packaged classifier: the frustum graphs alone
     model, meta = load_weights(wpath, "cpu")
     export_frustum_graphs(model.eval().fuse_batchnorm(), out, {
-        "tasks": meta.get("tasks"), "weights_file": wpath.name, "weights_sha256": file_digest(wpath),
+        "tasks": meta.get("tasks"), "weights_file": wpath.name, "weights_sha256": sha256_file(wpath),
     })
     if cpath is not None:
         export_classifier_graph(load_classifier(cpath)[0].eval().fuse_batchnorm(), out)
     info = json.loads((out / META_FILE).read_text())
     if cpath is not None:
-        info["classifier_sha256"] = file_digest(cpath)
+        info["classifier_sha256"] = sha256_file(cpath)
         (out / META_FILE).write_text(json.dumps(info, indent=2, default=str))
     return info
 

@@ -49,6 +49,8 @@ from .primitives import (
 
 @dataclass
 class LossWeights:
+    """Weight of each loss term in the total (0 switches a term off); keys as in :func:`compute_losses`."""
+
     seg: float = 1.0
     center: float = 5.0  # Frustum PointNets uses 1 (KITTI scale); indoor errors are ~5x smaller
     stage1_center: float = 5.0
@@ -69,7 +71,8 @@ class LossWeights:
     box2_heading: float = 2.0
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any] | None) -> "LossWeights":
+    def from_dict(cls, d: dict[str, Any] | None) -> LossWeights:
+        """Weights from a dict of overrides of the defaults; unknown keys are refused (ValueError)."""
         names = {f.name for f in fields(cls)}
         d = dict(d or {})
         bad = set(d) - names
@@ -78,6 +81,7 @@ class LossWeights:
         return cls(**{k: float(v) for k, v in d.items()})
 
     def to_dict(self) -> dict[str, float]:
+        """All weights as a plain dict; :meth:`from_dict` reads it back."""
         return asdict(self)
 
 
@@ -114,7 +118,7 @@ def _shape_terms(
     batch: dict[str, torch.Tensor],
     idx: torch.Tensor,
     frame: str,
-    w: "LossWeights",
+    w: LossWeights,
     l_nearest: int,
     consistency_per_face: int,
     min_size_frac: float,
@@ -173,7 +177,7 @@ def _box2_terms(
     gt_s: torch.Tensor,
     gt_h: torch.Tensor,
     pos: torch.Tensor,
-    w: "LossWeights",
+    w: LossWeights,
 ) -> dict[str, torch.Tensor]:
     """Losses of the second box stage (positives): Huber of the refined box's corner
     distances (mean over corners) to the GT box in the parametrisation nearest its heading
@@ -193,6 +197,58 @@ def _box2_terms(
         "box2_size": w.box2_size * _masked_mean(size, pos),
         "box2_heading": w.box2_heading * _masked_mean(heading, pos),
     }
+
+
+def _box_terms(
+    out: dict[str, torch.Tensor],
+    batch: dict[str, torch.Tensor],
+    mean_sizes: torch.Tensor,
+    pos: torch.Tensor,
+    w: LossWeights,
+) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+    """Box losses of the positives ``pos`` (B,) bool (frame F, m / rad), in the order they
+    add up, and the detached ``center_err`` / ``corner_dist`` (m) stats."""
+    losses: dict[str, torch.Tensor] = {}
+    stats: dict[str, torch.Tensor] = {}
+    nh = out["heading_scores"].shape[1]
+    gt_c, gt_s, gt_h = batch["center"], batch["size"], batch["heading"]
+    scl = batch["size_cluster"].long().clamp_min(0)
+    d1 = (out["stage1_center"] - gt_c).norm(dim=1)
+    head_c = out.get("center_head", out["center"])
+    d2 = (head_c - gt_c).norm(dim=1)
+    losses["stage1_center"] = w.stage1_center * _masked_mean(huber(d1, 1.0), pos)
+    losses["center"] = w.center * _masked_mean(huber(d2, 2.0), pos)
+    hcls, hres = encode_heading(gt_h, nh)
+    losses["heading_cls"] = w.heading_cls * _masked_mean(
+        F.cross_entropy(out["heading_scores"], hcls, reduction="none"), pos
+    )
+    pred_hres = gather_bin(out["heading_res_norm"], hcls)
+    losses["heading_res"] = w.heading_res * _masked_mean(huber(pred_hres - hres, 1.0), pos)
+    losses["size_cls"] = w.size_cls * _masked_mean(
+        F.cross_entropy(out["size_scores"], scl, reduction="none"), pos
+    )
+    sres = encode_size(gt_s, scl, mean_sizes)
+    pred_sres = gather_bin(out["size_res_norm"], scl)
+    losses["size_res"] = w.size_res * _masked_mean(huber((pred_sres - sres).norm(dim=1), 1.0), pos)
+    # corner loss: predicted centre, heading from the GT bin + predicted residual, size
+    # from the GT cluster + predicted residual; min over the GT box and its flip.
+    ph = decode_heading(hcls, pred_hres, nh)
+    ps = decode_size(scl, pred_sres, mean_sizes)
+    pc = box_corners_torch(head_c, ps, ph)
+    gc = box_corners_torch(gt_c, gt_s, gt_h)
+    gcf = box_corners_torch(gt_c, gt_s, gt_h + math.pi)
+    dc = torch.minimum((pc - gc).norm(dim=2).mean(1), (pc - gcf).norm(dim=2).mean(1))
+    # Frustum PointNets: huber of each corner distance; mean over corners
+    dcc = torch.minimum(
+        huber((pc - gc).norm(dim=2), 1.0).mean(1), huber((pc - gcf).norm(dim=2), 1.0).mean(1)
+    )
+    losses["corner"] = w.corner * _masked_mean(dcc, pos)
+    with torch.no_grad():
+        stats["center_err"] = _masked_mean(d2, pos)
+        stats["corner_dist"] = _masked_mean(dc, pos)
+    if "box2_res" in out:
+        losses.update(_box2_terms(out, gt_c, gt_s, gt_h, pos, w))
+    return losses, stats
 
 
 def compute_losses(
@@ -231,44 +287,9 @@ def compute_losses(
     pos = ~batch["is_negative"].bool()
     any_pos = bool(pos.any())
     if "box" in tasks and any_pos:
-        nh = out["heading_scores"].shape[1]
-        gt_c, gt_s, gt_h = batch["center"], batch["size"], batch["heading"]
-        scl = batch["size_cluster"].long().clamp_min(0)
-        d1 = (out["stage1_center"] - gt_c).norm(dim=1)
-        head_c = out.get("center_head", out["center"])
-        d2 = (head_c - gt_c).norm(dim=1)
-        losses["stage1_center"] = w.stage1_center * _masked_mean(huber(d1, 1.0), pos)
-        losses["center"] = w.center * _masked_mean(huber(d2, 2.0), pos)
-        hcls, hres = encode_heading(gt_h, nh)
-        losses["heading_cls"] = w.heading_cls * _masked_mean(
-            F.cross_entropy(out["heading_scores"], hcls, reduction="none"), pos
-        )
-        pred_hres = gather_bin(out["heading_res_norm"], hcls)
-        losses["heading_res"] = w.heading_res * _masked_mean(huber(pred_hres - hres, 1.0), pos)
-        losses["size_cls"] = w.size_cls * _masked_mean(
-            F.cross_entropy(out["size_scores"], scl, reduction="none"), pos
-        )
-        sres = encode_size(gt_s, scl, mean_sizes)
-        pred_sres = gather_bin(out["size_res_norm"], scl)
-        losses["size_res"] = w.size_res * _masked_mean(huber((pred_sres - sres).norm(dim=1), 1.0), pos)
-        # corner loss: predicted centre, heading from the GT bin + predicted residual, size
-        # from the GT cluster + predicted residual; min over the GT box and its flip.
-        ph = decode_heading(hcls, pred_hres, nh)
-        ps = decode_size(scl, pred_sres, mean_sizes)
-        pc = box_corners_torch(head_c, ps, ph)
-        gc = box_corners_torch(gt_c, gt_s, gt_h)
-        gcf = box_corners_torch(gt_c, gt_s, gt_h + math.pi)
-        dc = torch.minimum((pc - gc).norm(dim=2).mean(1), (pc - gcf).norm(dim=2).mean(1))
-        # Frustum PointNets: huber of each corner distance; mean over corners
-        dcc = torch.minimum(
-            huber((pc - gc).norm(dim=2), 1.0).mean(1), huber((pc - gcf).norm(dim=2), 1.0).mean(1)
-        )
-        losses["corner"] = w.corner * _masked_mean(dcc, pos)
-        with torch.no_grad():
-            stats["center_err"] = _masked_mean(d2, pos)
-            stats["corner_dist"] = _masked_mean(dc, pos)
-        if "box2_res" in out:
-            losses.update(_box2_terms(out, gt_c, gt_s, gt_h, pos, w))
+        box_losses, box_stats = _box_terms(out, batch, mean_sizes, pos, w)
+        losses.update(box_losses)
+        stats.update(box_stats)
 
     if "shape" in tasks:
         sh = pos & batch["has_shape"].bool()

@@ -58,6 +58,9 @@ def to_unit_box(p: torch.Tensor, center: torch.Tensor, heading: torch.Tensor, si
 
 
 class FrustumShapeNet(nn.Module):
+    """Frustum PointNets v1 with cuboid-shape and class heads (see the module docstring); points
+    (B, N, C) in the frustum frame F (m), class one-hot (B, num_classes) -> a dict of outputs."""
+
     #: the network's parts by name, each a set of its child modules / parameters: training
     #: phases say which parts train (the rest is frozen) by these names
     MODULE_GROUPS: dict[str, tuple[str, ...]] = {
@@ -272,12 +275,7 @@ class FrustumShapeNet(nn.Module):
             box_in = torch.cat([fo, self.ctx_mlp.forward_max(around)], 1)
         heads = split_box_head(self.box_head(box_in), cfg.num_heading_bins, cfg.num_size_clusters)
         center_head = stage1 + heads["center_res"]
-        with torch.no_grad():
-            hcls = heads["heading_scores"].argmax(1)
-            heading = decode_heading(hcls, gather_bin(heads["heading_res_norm"], hcls), cfg.num_heading_bins)
-            given = one_hot.sum(1) > 0
-            cluster = torch.where(given, one_hot.argmax(1), heads["size_scores"].argmax(1))
-            size = decode_size(cluster, gather_bin(heads["size_res_norm"], cluster), self.mean_sizes).clamp_min(0.02)
+        heading, given, cluster, size = self._decode_box(heads, one_hot)
         center = center_head
         box2_res = None
         if self.box2_mlp is not None:
@@ -308,6 +306,21 @@ class FrustumShapeNet(nn.Module):
         out.update(heads)
         return out
 
+    def _decode_box(
+        self, heads: dict[str, torch.Tensor], one_hot: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The box head's decoded box, without gradients: heading (B,) rad about F's z, whether
+        a class is given (B,) bool, size cluster (B,) (the given class, else the size head's
+        argmax) and size (B,3) m (at least 2 cm)."""
+        cfg = self.config
+        with torch.no_grad():
+            hcls = heads["heading_scores"].argmax(1)
+            heading = decode_heading(hcls, gather_bin(heads["heading_res_norm"], hcls), cfg.num_heading_bins)
+            given = one_hot.sum(1) > 0
+            cluster = torch.where(given, one_hot.argmax(1), heads["size_scores"].argmax(1))
+            size = decode_size(cluster, gather_bin(heads["size_res_norm"], cluster), self.mean_sizes).clamp_min(0.02)
+        return heading, given, cluster, size
+
     def _shape_raw(
         self,
         obj: torch.Tensor,
@@ -337,7 +350,7 @@ class FrustumShapeNet(nn.Module):
         return shape_raw
 
     @torch.no_grad()
-    def fuse_batchnorm(self) -> "FrustumShapeNet":
+    def fuse_batchnorm(self) -> FrustumShapeNet:
         """Fold every BatchNorm into its linear layer (inference only: call in eval mode,
         after loading weights; the module can no longer be trained or saved as weights)."""
         from .pointnet import PointLinear, fuse_linear_bn

@@ -118,6 +118,8 @@ class OrtFrustumForward:
         seg_cache: tuple[np.ndarray, np.ndarray] | None = None,
         shapes: bool = True,
     ) -> dict[str, np.ndarray]:
+        """Run the graphs on ``points`` (B, N, C) float32 (frame F, m) and ``one_hot`` (B, num_classes);
+        ``seg_cache``: the ``(seg_glob, seg_local)`` of an earlier pass on the same points."""
         pts = np.ascontiguousarray(points, np.float32)
         if seg_cache is None:
             glob, local = self.seg.run(None, {"points": pts})
@@ -139,6 +141,7 @@ class OrtClassifier:
         self.session = make_session(path, threads, device)
 
     def __call__(self, points: np.ndarray, globals_: np.ndarray) -> np.ndarray:
+        """Probabilities (B, C+1), background last, of candidates ``points`` (B, N, 7) and ``globals_`` (B, G)."""
         return self.session.run(None, {"points": np.ascontiguousarray(points, np.float32),
                                        "globals": np.ascontiguousarray(globals_, np.float32)})[0]
 

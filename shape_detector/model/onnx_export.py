@@ -36,6 +36,8 @@ from typing import Any
 
 import numpy as np
 
+from ..digests import sha256_file
+
 #: bump when the graphs' inputs / outputs or their semantics change (invalidates caches)
 EXPORT_VERSION = 1
 OPSET = 17
@@ -71,15 +73,6 @@ def cache_root() -> Path:
         except OSError:
             continue
     return Path(tempfile.mkdtemp(prefix="shape_detector-"))
-
-
-def file_digest(path: str | Path) -> str:
-    """sha256 (hex) of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def module_digest(module: Any) -> str:
@@ -301,7 +294,7 @@ def frustum_graphs(weights: str | Path | None, load_model) -> tuple[Path, dict[s
         model, meta = load_model()
         digest = module_digest(model)
     else:
-        digest = file_digest(weights)
+        digest = sha256_file(weights)
     folder = cache_dir("frustum", digest)
     info = _complete(folder, FRUSTUM_GRAPHS)
     if info is None:

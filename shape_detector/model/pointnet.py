@@ -32,6 +32,7 @@ class PointLinear(nn.Module):
         self.bn = None
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``(..., c_in)`` -> ``(..., c_out)``."""
         y = self.linear(x)
         if self.bn is not None:
             shape = y.shape
@@ -55,6 +56,7 @@ class SharedMLP(nn.Module):
         self.out_channels = c
 
     def forward(self, x: torch.Tensor, return_all: bool = False):
+        """``(B, N, C_in)`` -> the last layer's ``(B, N, C_out)``, or with ``return_all`` a list of every layer's output."""
         outs = []
         for layer in self.layers:
             x = layer(x)
@@ -111,6 +113,7 @@ class FCHead(nn.Module):
         self.out = nn.Linear(c, c_out)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``(B, c_in)`` -> ``(B, c_out)``."""
         return self.out(self.body(x))
 
 

@@ -18,10 +18,9 @@ foreground points as score. Frustums with no valid point get score 0.
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Sequence
-
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -36,7 +35,11 @@ from .onnx_backend import resolve_backend
 from .prediction import FrustumPrediction, refined_score
 
 if TYPE_CHECKING:
+    from concurrent.futures import ThreadPoolExecutor
+
     import torch
+
+    from .onnx_backend import OrtFrustumForward
 
 BACKGROUND = "background"
 
@@ -68,7 +71,7 @@ def cpu_has_amx() -> bool:
         return False
 
 
-def resolve_device(device: "str | torch.device | None") -> "torch.device":
+def resolve_device(device: str | torch.device | None) -> torch.device:
     """``"auto"``/None -> cuda when available else cpu; otherwise ``torch.device(device)``."""
     import torch
 
@@ -111,7 +114,7 @@ class FrustumPredictor:
     def __init__(
         self,
         weights: str | Path | None = None,
-        device: "str | torch.device" = "cpu",
+        device: str | torch.device = "cpu",
         num_threads: int | None = None,
         workers: int = 1,
         min_chunk: int = 3,
@@ -127,9 +130,9 @@ class FrustumPredictor:
         self._trace = bool(trace)
         self.workers = max(1, int(workers))
         self.min_chunk = max(1, int(min_chunk))
-        self._pool = None
-        self._model = None
-        self._ort = None
+        self._pool: ThreadPoolExecutor | None = None
+        self._model: Any = None  # the torch network, loaded lazily under onnxruntime
+        self._ort: OrtFrustumForward | None = None
         self.meta: dict = {}
         if weights is None:
             p = default_weights_path()
@@ -231,7 +234,11 @@ class FrustumPredictor:
 
     @property
     def config(self) -> ModelConfig:
-        return self._config if self._ort is not None else self._model.config
+        """The network's configuration (of the torch model, or read with the onnxruntime graphs)."""
+        if self._ort is not None:
+            return self._config
+        assert self._model is not None, "torch backend without a network"
+        return self._model.config
 
     @property
     def num_points(self) -> int:
@@ -240,6 +247,7 @@ class FrustumPredictor:
 
     @property
     def has_class_head(self) -> bool:
+        """Whether the weights were trained with the class head (task ``cls``; older weights: assumed)."""
         tasks = self.meta.get("tasks")
         return tasks is None or "cls" in tasks
 
@@ -393,13 +401,14 @@ class FrustumPredictor:
         k = min(self.workers, n // self.min_chunk)
         if k <= 1:
             return self.forward_arrays(pts, oh, seg_cache, keep_features, shapes)
-        if self._pool is None:
+        pool = self._pool
+        if pool is None:
             from concurrent.futures import ThreadPoolExecutor
 
-            self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="frustum-net")
+            pool = self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="frustum-net")
         bounds = np.linspace(0, n, k + 1).round().astype(int)
         futs = [
-            self._pool.submit(
+            pool.submit(
                 self.forward_arrays,
                 pts[a:b],
                 oh[a:b],

@@ -3,13 +3,12 @@
 The eager forward of :class:`~shape_detector.model.network.FrustumShapeNet` is a few
 thousand small torch ops, each dispatched from Python under the GIL. Beside another
 Python thread (the node's pipeline runs the proposer in one thread while the network runs
-in the other) every op waits for that thread to let go of the GIL: on the 2-core Intel VM a
-10-frustum forward took 12 ms alone, 20 ms beside the proposer and 680-1070 ms beside a
-pure-Python busy loop. A traced and frozen graph runs in TorchScript's interpreter,
-which releases the GIL for the whole call (13 ms beside the proposer, 32 ms beside the
-busy loop, where only the Python around the call still waits), and skips the
-per-op Python overhead (10 frustums, one thread: fp32 25.7 -> 23.1 ms; bfloat16 11.2 ->
-8.4 ms, the frozen graph casting the weights once instead of at every call).
+in the other) every op waits for that thread to let go of the GIL, and beside a busy
+pure-Python loop a forward slows down by orders of magnitude. A traced and frozen graph runs
+in TorchScript's interpreter, which releases the GIL for the whole call (only the Python
+around the call still waits), and skips the per-op Python overhead (under bfloat16 the
+frozen graph also casts the weights once instead of at every call).
+``shape-detector bench network`` prints the times (``beside_python``).
 
 Outputs are bit-identical to the eager forward (the graphs are traced from it, per
 variant: with or without a segmentation-feature cache, fp32 or bfloat16 autocast, the
@@ -146,6 +145,7 @@ class TracedModule:
         return graph
 
     def __call__(self, *args: torch.Tensor, bf16: bool = False) -> tuple[torch.Tensor, ...]:
+        """``module(*args)`` through the graph of this variant (traced now if new), or eagerly."""
         key = (bool(bf16), tuple((a.dtype, tuple(a.shape[1:])) for a in args))
         graph = self._graph(key, args, bool(bf16))
         return graph(*args) if graph is not None else self._eager(args, bool(bf16))

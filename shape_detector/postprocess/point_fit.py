@@ -12,7 +12,7 @@ frames (docs/experiments/code-comment-numbers.md).
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

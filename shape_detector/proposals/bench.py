@@ -48,10 +48,10 @@ def bench_proposals(frames: int = 20, seed0: int = 20_000, repeats: int = 2, ver
 
     for _ in range(max(1, repeats)):
         for f in data:
-            grid = timed("grid", lambda: make_grid(f.depth, f.K, stride=stride, max_depth=cfg.max_depth))
-            grav = timed("gravity", lambda: estimate_up(None, f.K, grid=grid, config=cfg.gravity))
-            timed("proposals", lambda: prop.propose(grid, grav, f.rgb))
-            _, props = timed("total", lambda: prop(f.depth, f.K, rgb=f.rgb))
+            grid = timed("grid", lambda f=f: make_grid(f.depth, f.K, stride=stride, max_depth=cfg.max_depth))
+            grav = timed("gravity", lambda f=f, grid=grid: estimate_up(None, f.K, grid=grid, config=cfg.gravity))
+            timed("proposals", lambda f=f, grid=grid, grav=grav: prop.propose(grid, grav, f.rgb))
+            _, props = timed("total", lambda f=f: prop(f.depth, f.K, rgb=f.rgb))
             nprops.append(len(props))
     h, w = data[0].depth.shape
     res: dict = {"frames": len(data), "source": source, "image": f"{w}x{h}", "stride": stride}

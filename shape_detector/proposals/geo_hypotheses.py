@@ -18,6 +18,31 @@ if TYPE_CHECKING:
 _SIGN = np.array([1, 1, -1, -1, 1, 1, -1, -1, -1, 1], np.float64)
 
 
+def _containment_pairs(cell: np.ndarray, sid: np.ndarray, S: int, contain_frac: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs ``(i, j)`` of segments (labels ``sid`` 0..S-1 of nodes in footprint cells ``cell``)
+    where at least ``contain_frac`` of j's footprint cells are also i's (j mostly inside i's
+    footprint), from the segment pairs sharing a footprint cell."""
+    key = np.unique(cell * S + sid)
+    kc, ks = np.divmod(key, S)
+    area = np.bincount(ks, minlength=S).astype(np.float64)
+    pa, pb = [], []
+    for k in range(1, 6):
+        same = kc[k:] == kc[:-k]
+        if not same.any():
+            break
+        pa.append(ks[:-k][same])
+        pb.append(ks[k:][same])
+    if not pa:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    pk, shared = np.unique(np.concatenate(pa) * S + np.concatenate(pb), return_counts=True)
+    p1, p2 = np.divmod(pk, S)
+    ci = np.concatenate([p1, p2])  # container candidates
+    cj = np.concatenate([p2, p1])
+    sh = np.concatenate([shared, shared]).astype(np.float64)
+    inside = sh >= contain_frac * area[cj]  # cj mostly inside ci's footprint
+    return ci[inside], cj[inside]
+
+
 class HypothesisBuilder:
     """Mixin of :class:`~.geometric.GeometricProposer`: per-point data, hypotheses of a
     segmentation, equal splits, footprint layers and their boxes (uses ``self.config``)."""
@@ -72,26 +97,7 @@ class HypothesisBuilder:
         hmin, umin, vmin, xmin, ymin = mins.T
         hmax, umax, vmax, xmax, ymax = maxs.T
         # footprint overlap between segments: pairs sharing a footprint cell
-        key = np.unique(cell * S + sid)
-        kc, ks = np.divmod(key, S)
-        area = np.bincount(ks, minlength=S).astype(np.float64)
-        pa, pb = [], []
-        for k in range(1, 6):
-            same = kc[k:] == kc[:-k]
-            if not same.any():
-                break
-            pa.append(ks[:-k][same])
-            pb.append(ks[k:][same])
-        if pa:
-            pk, shared = np.unique(np.concatenate(pa) * S + np.concatenate(pb), return_counts=True)
-            p1, p2 = np.divmod(pk, S)
-            ci = np.concatenate([p1, p2])  # container candidates
-            cj = np.concatenate([p2, p1])
-            sh = np.concatenate([shared, shared]).astype(np.float64)
-            inside = sh >= cfg.contain_frac * area[cj]  # cj mostly inside ci's footprint
-            ci, cj = ci[inside], cj[inside]
-        else:
-            ci = cj = np.zeros(0, np.int64)
+        ci, cj = _containment_pairs(cell, sid, S, cfg.contain_frac)
         below = hmax[cj] <= hmin[ci] + cfg.below_margin
 
         # stats columns: umin vmin umax vmax xmin ymin xmax ymax hmax (max ones negated -> all mins)

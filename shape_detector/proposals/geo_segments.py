@@ -13,6 +13,9 @@ from ..gravity import DepthGrid
 if TYPE_CHECKING:
     from .geometric import GeometricConfig, ProposalDebug
 
+#: one grid link direction: (jump, curvature, known, slice_a, slice_b), see ``Segmenter._link_features``
+LinkFeatures = tuple[np.ndarray, np.ndarray, np.ndarray, tuple[slice, slice], tuple[slice, slice]]
+
 
 def _pad0(a: np.ndarray, pad: int) -> np.ndarray:
     """``np.pad(a, pad)`` (zeros around a 2D array) without its per-call overhead."""
@@ -28,7 +31,7 @@ class Segmenter:
     config: GeometricConfig
     debug: ProposalDebug
 
-    def _link_features(self, grid: DepthGrid, P: np.ndarray, valid: np.ndarray) -> list[tuple[np.ndarray, ...]]:
+    def _link_features(self, grid: DepthGrid, P: np.ndarray, valid: np.ndarray) -> list[LinkFeatures]:
         """Per grid link (axis 1: to the right neighbour, axis 0: to the one below):
         ``(jump, curvature, known, slice_a, slice_b)``. ``jump``: a depth discontinuity (step
         nearly along the viewing ray, or large); ``curvature``:

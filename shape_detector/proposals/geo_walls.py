@@ -44,38 +44,13 @@ class WallFinder:
         nx, ny = nx / nn, ny / nn
         xv, yv = X[sub2][vert], Y[sub2][vert]
         rho = xv * nx + yv * ny  # negative: normals face the camera
-        nab, rb = 90, 0.05
-        ia = (np.mod(np.arctan2(ny, nx), 2 * np.pi) / (2 * np.pi) * nab).astype(np.int64) % nab
-        rmin = -cfg.max_depth - 1.0
-        nrb = int((cfg.max_depth + 2.0) / rb)
-        ir = np.clip(((rho - rmin) / rb).astype(np.int64), 0, nrb - 1)
-        hist = np.bincount(ia * nrb + ir, minlength=nab * nrb).reshape(nab, nrb).astype(np.float32)
-        hs = cv2.blur(hist, (3, 3), borderType=cv2.BORDER_CONSTANT) * 9
-        peaks = []
-        for _ in range(cfg.wall_candidates):
-            k = int(np.argmax(hs))
-            ka, kr = divmod(k, nrb)
-            if 4 * hs[ka, kr] < min_pts * 0.5:
-                break
-            for a in range(ka - 2, ka + 3):
-                hs[a % nab, max(kr - 4, 0) : kr + 5] = 0
-            peaks.append(((ka + 0.5) * 2 * np.pi / nab, rmin + (kr + 0.5) * rb))
+        peaks = _hough_peaks(nx, ny, rho, cfg.max_depth, cfg.wall_candidates, min_pts)
         if not peaks:
             return []
-        ang = np.array([p[0] for p in peaks])
-        r0 = np.array([p[1] for p in peaks])
-        # initial normals / offsets: mean of each peak's member normals and offsets
-        mem = (np.abs(rho[None, :] - r0[:, None]) < 0.1) & (
-            nx[None, :] * np.cos(ang)[:, None] + ny[None, :] * np.sin(ang)[:, None] > np.cos(np.radians(10))
-        )
-        cnt = mem.sum(1)
-        ok = cnt >= 5
-        if not ok.any():
+        lines = _initial_lines(peaks, nx, ny, rho)
+        if lines is None:
             return []
-        memf = mem[ok].astype(np.float32)
-        nvec = np.stack([memf @ nx, memf @ ny], 1)
-        nvec /= np.linalg.norm(nvec, axis=1, keepdims=True)
-        r0 = (memf @ rho) / cnt[ok]
+        nvec, r0 = lines
         # candidate statistics on a subsample of the object points
         obj_idx = np.flatnonzero(obj)
         sub = max(1, len(obj_idx) // 1500)
@@ -83,22 +58,7 @@ class WallFinder:
         xo, yo, ho, zo = X.ravel()[obj_idx], Y.ravel()[obj_idx], hgt.ravel()[obj_idx], z.ravel()[obj_idx]
         vo = obj_idx // w
         wtol = (cfg.wall_tol + 0.003 * zo * zo)[None, :]
-        mom = np.stack([np.ones_like(xo), xo, yo, xo * xo, xo * yo, yo * yo], 1).astype(np.float64)
-        for _it in range(2):  # refine: 2D line fit of each band's footprint
-            off = nvec[:, :1] * xo[None, :] + nvec[:, 1:] * yo[None, :] - r0[:, None]
-            band = (np.abs(off) < wtol).astype(np.float64)
-            M = band @ mom  # (K, 6): n, sx, sy, sxx, sxy, syy
-            n_ = np.maximum(M[:, 0], 1.0)
-            mx, my = M[:, 1] / n_, M[:, 2] / n_
-            cxx = M[:, 3] / n_ - mx * mx
-            cxy = M[:, 4] / n_ - mx * my
-            cyy = M[:, 5] / n_ - my * my
-            ang_l = 0.5 * np.arctan2(2 * cxy, cxx - cyy)  # line direction
-            nn2 = np.stack([-np.sin(ang_l), np.cos(ang_l)], 1)
-            nn2 *= np.where((nn2 * nvec).sum(1) < 0, -1.0, 1.0)[:, None]
-            upd = (M[:, 0] >= 10) & ((nn2 * nvec).sum(1) > np.cos(np.radians(15)))
-            nvec = np.where(upd[:, None], nn2, nvec)
-            r0 = np.where(upd, mx * nvec[:, 0] + my * nvec[:, 1], r0)
+        nvec, r0 = _refine_lines(nvec, r0, xo, yo, wtol)
         off = nvec[:, :1] * xo[None, :] + nvec[:, 1:] * yo[None, :] - r0[:, None]
         band = np.abs(off) < wtol
         nb = band.sum(1)
@@ -135,6 +95,76 @@ class WallFinder:
             if len(walls) >= 4:
                 break
         return walls
+
+
+def _hough_peaks(nx: np.ndarray, ny: np.ndarray, rho: np.ndarray, max_depth: float, max_peaks: int,
+                 min_pts: float) -> list[tuple[float, float]]:
+    """Peaks ``(normal azimuth (rad), offset (m))`` of a (4 deg, 5 cm) Hough vote of points with
+    unit horizontal normals ``(nx, ny)`` at offsets ``rho`` (upright frame U), best first: at most
+    ``max_peaks``, each with at least ``min_pts / 2`` votes (counted x 4: the voters are every 2nd
+    row and column), each suppressing its neighbourhood."""
+    nab, rb = 90, 0.05
+    ia = (np.mod(np.arctan2(ny, nx), 2 * np.pi) / (2 * np.pi) * nab).astype(np.int64) % nab
+    rmin = -max_depth - 1.0
+    nrb = int((max_depth + 2.0) / rb)
+    ir = np.clip(((rho - rmin) / rb).astype(np.int64), 0, nrb - 1)
+    hist = np.bincount(ia * nrb + ir, minlength=nab * nrb).reshape(nab, nrb).astype(np.float32)
+    hs = cv2.blur(hist, (3, 3), borderType=cv2.BORDER_CONSTANT) * 9
+    peaks = []
+    for _ in range(max_peaks):
+        k = int(np.argmax(hs))
+        ka, kr = divmod(k, nrb)
+        if 4 * hs[ka, kr] < min_pts * 0.5:
+            break
+        for a in range(ka - 2, ka + 3):
+            hs[a % nab, max(kr - 4, 0) : kr + 5] = 0
+        peaks.append(((ka + 0.5) * 2 * np.pi / nab, rmin + (kr + 0.5) * rb))
+    return peaks
+
+
+def _initial_lines(peaks: list[tuple[float, float]], nx: np.ndarray, ny: np.ndarray,
+                   rho: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Initial wall lines ``(normals (K, 2), offsets (K,) m)`` in the upright frame U: the mean
+    normal and offset of each Hough peak's members (within 10 cm and 10 deg); peaks with under
+    5 members are dropped, None when none is left."""
+    ang = np.array([p[0] for p in peaks])
+    r0 = np.array([p[1] for p in peaks])
+    mem = (np.abs(rho[None, :] - r0[:, None]) < 0.1) & (
+        nx[None, :] * np.cos(ang)[:, None] + ny[None, :] * np.sin(ang)[:, None] > np.cos(np.radians(10))
+    )
+    cnt = mem.sum(1)
+    ok = cnt >= 5
+    if not ok.any():
+        return None
+    memf = mem[ok].astype(np.float32)
+    nvec = np.stack([memf @ nx, memf @ ny], 1)
+    nvec /= np.linalg.norm(nvec, axis=1, keepdims=True)
+    r0 = (memf @ rho) / cnt[ok]
+    return nvec, r0
+
+
+def _refine_lines(nvec: np.ndarray, r0: np.ndarray, xo: np.ndarray, yo: np.ndarray,
+                  wtol: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Wall lines ``(normals (K, 2), offsets (K,) m)`` in the upright frame U refined twice by a
+    2D line fit of the points ``(xo, yo)`` within ``wtol`` (m) of each; a line keeps its previous
+    fit when its band has under 10 points or the fit turns it by 15 deg or more."""
+    mom = np.stack([np.ones_like(xo), xo, yo, xo * xo, xo * yo, yo * yo], 1).astype(np.float64)
+    for _it in range(2):  # refine: 2D line fit of each band's footprint
+        off = nvec[:, :1] * xo[None, :] + nvec[:, 1:] * yo[None, :] - r0[:, None]
+        band = (np.abs(off) < wtol).astype(np.float64)
+        M = band @ mom  # (K, 6): n, sx, sy, sxx, sxy, syy
+        n_ = np.maximum(M[:, 0], 1.0)
+        mx, my = M[:, 1] / n_, M[:, 2] / n_
+        cxx = M[:, 3] / n_ - mx * mx
+        cxy = M[:, 4] / n_ - mx * my
+        cyy = M[:, 5] / n_ - my * my
+        ang_l = 0.5 * np.arctan2(2 * cxy, cxx - cyy)  # line direction
+        nn2 = np.stack([-np.sin(ang_l), np.cos(ang_l)], 1)
+        nn2 *= np.where((nn2 * nvec).sum(1) < 0, -1.0, 1.0)[:, None]
+        upd = (M[:, 0] >= 10) & ((nn2 * nvec).sum(1) > np.cos(np.radians(15)))
+        nvec = np.where(upd[:, None], nn2, nvec)
+        r0 = np.where(upd, mx * nvec[:, 0] + my * nvec[:, 1], r0)
+    return nvec, r0
 
 
 def _masked_quantiles(
