@@ -16,7 +16,7 @@ export ROS_DOMAIN_ID ?= 77
 export FASTDDS_DEFAULT_PROFILES_FILE ?= $(CURDIR)/shape_detector/config/fastdds_shm.xml
 export FASTRTPS_DEFAULT_PROFILES_FILE ?= $(FASTDDS_DEFAULT_PROFILES_FILE)
 
-.PHONY: demo test install bench sample-bag figures weights evaluate ablation clean
+.PHONY: demo test lint install bench sample-bag figures weights evaluate ablation clean
 
 install: $(STAMP)
 
@@ -38,6 +38,10 @@ demo: $(STAMP) $(WALK)/metadata.yaml
 
 test: $(STAMP)
 	$(PY) -m pytest -q test
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check shape_detector msg_conversion test scripts
+	$(VENV)/bin/mypy shape_detector msg_conversion
 
 bench: $(STAMP)
 	$(VENV)/bin/shape-detector bench all
