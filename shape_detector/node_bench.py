@@ -223,6 +223,17 @@ def _receive_stats(rec: list, sent: int, wall: float) -> dict[str, Any]:
     )
 
 
+def rss_mb(pid: int) -> float:
+    """Resident set size of process ``pid`` in MiB (Linux /proc); NaN when unreadable."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return float("nan")
+
+
 def bench_node(
     bag: str | Path | None = None,
     weights: str | None = None,
@@ -258,6 +269,7 @@ def bench_node(
     env = ros_env()
     os.environ.update({k: env[k] for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID", "FASTDDS_DEFAULT_PROFILES_FILE",
                                             "FASTRTPS_DEFAULT_PROFILES_FILE")})
+    spawned_ns = time.time_ns()
     proc = start_node(remaps, params, env=env, extra_pythonpath=extra_pythonpath)
     out = OutputCollector(proc, echo=echo)
     ctx = rclpy.context.Context()
@@ -267,6 +279,7 @@ def bench_node(
     try:
         if not out.wait_for("ready:", ready_timeout):
             raise RuntimeError(f"detector_node did not become ready in {ready_timeout} s:\n{out.text[-3000:]}")
+        result["ready_s"] = (time.time_ns() - spawned_ns) / 1e9
         sent = 0
         t0 = time.perf_counter()
         for k in range(max(1, loops)):
@@ -276,6 +289,9 @@ def bench_node(
         listener.wait_quiet(sent, timeout=60.0)
         wall = time.perf_counter() - t0
         result.update(_receive_stats(list(listener.received), sent, wall))
+        if listener.received:  # from spawning the node to its first published frame (player included)
+            result["first_frame_s"] = (listener.received[0][0] - spawned_ns) / 1e9
+        result["node_rss_mb"] = rss_mb(proc.pid)
     finally:
         # the child first: whatever happens to this process' ROS teardown, it is reaped
         rc = stop_node(proc)
@@ -287,7 +303,8 @@ def bench_node(
             f"node: {result['frames_received']}/{result['frames_sent']} frames, {result['fps']:.2f} frames/s "
             f"(input {result['input_fps']:.2f}/s, rate {rate}), latency stamp->markers p50 "
             f"{result['latency_p50_ms']:.1f} ms, p95 {result['latency_p95_ms']:.1f} ms, "
-            f"dropped {result['frames_dropped']}",
+            f"dropped {result['frames_dropped']}; ready {result['ready_s']:.2f} s and first frame "
+            f"{result.get('first_frame_s', float('nan')):.2f} s after start, node RSS {result['node_rss_mb']:.0f} MiB",
             flush=True,
         )
     return result

@@ -18,20 +18,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .node_bench import DEFAULT_BAG, MarkerListener, OutputCollector, ros_env, start_node, stop_node
+from .node_bench import DEFAULT_BAG, MarkerListener, OutputCollector, ros_env, rss_mb, start_node, stop_node
 
 _TOTALS = re.compile(r"totals: (\d+) synced, (\d+) processed, (\d+) dropped")
-
-
-def rss_mb(pid: int) -> float:
-    """Resident set size of process ``pid`` in MiB (Linux /proc); NaN when unreadable."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return float("nan")
 
 
 def node_totals(log: str) -> tuple[int, int, int]:

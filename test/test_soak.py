@@ -5,7 +5,8 @@ from __future__ import annotations
 import math
 import os
 
-from shape_detector.soak import _summarise, in_stamp_order, node_totals, rss_mb
+from shape_detector.node_bench import rss_mb
+from shape_detector.soak import _summarise, in_stamp_order, node_totals
 
 LOG = ("[INFO] [1.0] [sd]: 3.0 frames/s; totals: 10 synced, 7 processed, 3 dropped (busy), 0 skipped\n"
        "[shape_detector] at exit: 2.0 frames/s; totals: 120 synced, 80 processed, 40 dropped (busy), 0 skipped\n")
