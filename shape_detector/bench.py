@@ -112,6 +112,7 @@ def bench_pipeline(
     (``peer``: :mod:`.model.fpointnet_v1`), then the built-in throughput with the node's
     two-thread pipeline."""
     from .detector import ShapeDetector
+    from .detector_config import resolved_workers
 
     overrides = dict(
         precision=precision, weights=weights, score_threshold=score_threshold, num_threads=threads, workers=workers,
@@ -123,7 +124,7 @@ def bench_pipeline(
     det.warm_up()  # as the node does at start: the network's graphs are traced
     cfg = det.config
     print(f"pipeline: {len(scenes)} VGA frames, backend {det.predictor.backend}, precision {det.predictor.precision}, "
-          f"max_objects {cfg.max_objects}, workers {cfg.workers}, threads {cfg.num_threads}, "
+          f"max_objects {cfg.max_objects}, workers {det.predictor.workers} ({cfg.workers or 'auto'}), threads {cfg.num_threads}, "
           f"score_threshold {cfg.score_threshold}; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs",
           flush=True)
     out: dict[str, dict] = {}
@@ -140,11 +141,16 @@ def bench_pipeline(
         print(f"peer: F-PointNet v1 forward, 10 x 1024 points, PyTorch, {v1['threads']} thread(s): "
               f"{v1['ms_p50']:.1f} ms (cpu {v1['cpu_ms_p50']:.1f} ms) = {v1['ratio_to_given10']:.1f}x "
               f"(cpu {v1['cpu_ratio_to_given10']:.1f}x) our detect() with 10 given boxes", flush=True)
-    # as the node runs it: two stages, the network split over the detector's workers
+    # as the node runs it: two stages, the network split over the workers the node resolves
+    node_workers = resolved_workers(cfg.workers, pipelined=True)
+    if node_workers != det.predictor.workers:
+        det = ShapeDetector(**{k: v for k, v in overrides.items() if v is not None and k != "workers"},
+                            workers=node_workers)
+        det.warm_up()
     res = _bench_pipelined(det, scenes, pipeline_split)
     out["builtin_pipelined"] = res
     print(
-        f"pipeline[builtin, node's 2-stage pipeline, workers={cfg.workers}]: {res['ms_per_frame']:.1f} ms/frame throughput "
+        f"pipeline[builtin, node's 2-stage pipeline, workers={node_workers}]: {res['ms_per_frame']:.1f} ms/frame throughput "
         f"({res['fps']:.1f} fps); latency p50 {res['latency_ms_p50']:.1f} ms, p95 {res['latency_ms_p95']:.1f} ms; "
         f"first pass in the first stage for {100 * res['first_pass_early_share']:.0f}% of the frames "
         f"(pipeline_split {pipeline_split})",

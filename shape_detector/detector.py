@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from .classes import CLASS_TO_ID
-from .detector_config import DetectorConfig, make_config, preset
+from .detector_config import DetectorConfig, make_config, preset, resolved_workers
 from .frustum import Frustum, extract_frustums, valid_depth
 from .geometry import upright_rotation
 from .inputs import normalize_inputs
@@ -220,7 +220,7 @@ class ShapeDetector:
             )
         self.weights = path
         self.predictor = FrustumPredictor(path, device=cfg.device, num_threads=cfg.num_threads or None,
-                                          workers=cfg.workers, precision=cfg.precision, trace=cfg.trace,
+                                          workers=resolved_workers(cfg.workers), precision=cfg.precision, trace=cfg.trace,
                                           **_backend_kw(FrustumPredictor, cfg))
         self.num_points = int(self.predictor.config.num_points)
         self._proposer = make_proposer(cfg)

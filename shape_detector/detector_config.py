@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+import os
+
 import dataclasses
 from dataclasses import dataclass
 from typing import Any
@@ -53,8 +55,9 @@ class DetectorConfig:
     trace: bool = setting(True, "run the PyTorch network as frozen TorchScript graphs (releases the GIL)")
     num_threads: int = setting(1, "intra-op threads of the network; 0 keeps the runtime's default",
                                range=(0, 256))
-    workers: int = setting(1, "threads a frame's frustums are split over, each single-threaded; 1 = serial",
-                           range=(1, 64))
+    workers: int = setting(0, "threads a frame's frustums are split over, each single-threaded; 1 = serial; "
+                           "0 = auto: 2 on a machine with two or more cores, 1 inside the node's two-stage "
+                           "pipeline (which already keeps two cores busy)", range=(0, 64))
     point_fit: float = setting(0.15, "grow each box to its segmented points between this quantile and its "
                                "complement per axis; 0 = off", range=(0.0, 0.5), hi_open=True, node="dynamic")
     fit_confidence: float = setting(0.8, "foreground probability a point needs to count as the object's in "
@@ -82,6 +85,17 @@ PRESETS: dict[str, dict[str, Any]] = {
     "accurate": {"max_objects": 25, "workers": 2, "precision": "fp32"},
 }
 
+
+
+def resolved_workers(workers: int, pipelined: bool = False) -> int:
+    """Frustum worker threads for a ``workers`` setting: 0 (auto) is 1 in the node's two-stage
+    pipeline and otherwise 2 where this process may use two or more cores; others as given."""
+    if workers > 0:
+        return int(workers)
+    if pipelined:
+        return 1
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return 2 if cores >= 2 else 1
 
 def detector_specs() -> dict[str, Spec]:
     """name -> :class:`~shape_detector.settings.Spec` of every detector setting."""

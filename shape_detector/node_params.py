@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from collections.abc import Callable
 from typing import Any
 
-from .detector_config import DetectorConfig, detector_specs, preset
+from .detector_config import DetectorConfig, detector_specs, preset, resolved_workers
 from .settings import Spec, check, setting, specs
 
 @dataclass(frozen=True)
@@ -109,6 +109,8 @@ def detector_config(p: dict[str, Any], external: bool) -> DetectorConfig:
     values = {k: p[k] for k in detector_specs() if k in p}
     if external:
         values["proposal_source"] = "external"
+    if p.get("pipeline") and not values.get("workers"):  # auto: the pipeline's two stages use the cores
+        values["workers"] = resolved_workers(0, pipelined=True)
     return preset("realtime", **values)
 
 

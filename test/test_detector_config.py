@@ -112,3 +112,21 @@ def test_hooks_see_each_step_and_nms_skips_given_boxes():
     assert seen == [("nms", 2), ("output", 1)] and len(out) == 1
     ctx.given_boxes = True
     assert len(pipe.run(objs, ctx)) == 2
+
+
+def test_auto_workers_are_two_for_serial_calls_and_one_in_the_node_pipeline(monkeypatch):
+    import os
+
+    from shape_detector.detector_config import resolved_workers
+    from shape_detector.node_params import PARAMETERS, detector_config
+
+    assert preset("realtime").workers == 0 and preset("accurate").workers == 2
+    assert resolved_workers(3) == 3 and resolved_workers(0, pipelined=True) == 1
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    assert resolved_workers(0) == 2
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    assert resolved_workers(0) == 1
+    p = {k: spec.default for k, spec in PARAMETERS.items()}
+    assert detector_config(p, external=False).workers == 1  # pipeline on: auto resolves to one worker
+    assert detector_config({**p, "pipeline": False}, external=False).workers == 0
+    assert detector_config({**p, "workers": 2}, external=False).workers == 2
