@@ -218,7 +218,7 @@ def test_should_stop_in_library(small_bag, tmp_path):
     (["--depth-scale", "nan"], "--depth-scale"), (["--depth-scale", "inf"], "--depth-scale"),
     (["--max-objects", "-5"], "--max-objects"), (["--max-objects", "0"], "--max-objects"),
     (["--score-threshold", "2"], "--score-threshold"), (["--score-threshold", "-0.1"], "--score-threshold"),
-    (["--workers", "0"], "--workers"), (["--queue-size", "0"], "--queue-size"),
+    (["--workers", "-1"], "--workers"), (["--queue-size", "0"], "--queue-size"),
     (["--slop", "-1"], "--slop"), (["--slop", "nan"], "--slop"), (["--up", "0,0,0"], "--up"),
     (["--up", "1,2"], "--up"), (["--rate", "nan"], "--rate"), (["--wait-subscribers", "-1"], "--wait-subscribers"),
     (["--delay", "-2"], "--delay"), (["--remap", "nocolon"], "--remap"), (["--device", "gpu0"], "--device"),
