@@ -17,8 +17,8 @@ pytest.importorskip("onnxruntime")
 torch = pytest.importorskip("torch")
 
 from shape_detector.frustum import Frustum, extract_frustum  # noqa: E402
-from shape_detector.geometry import upright_rotation  # noqa: E402
 from shape_detector.model import onnx_backend  # noqa: E402
+from shape_detector.model.bench import random_frustums  # noqa: E402
 from shape_detector.model.config import ModelConfig  # noqa: E402
 from shape_detector.model.io import save_weights  # noqa: E402
 from shape_detector.model.network import FrustumShapeNet  # noqa: E402
@@ -59,17 +59,8 @@ def cache(tmp_path_factory):
         os.environ["SHAPE_DETECTOR_CACHE"] = old
 
 
-def _random_frustums(n: int, num_points: int, seed: int = 0) -> list[Frustum]:
-    rng = np.random.default_rng(seed)
-    out = []
-    for _ in range(n):
-        pts = np.zeros((num_points, 6), np.float32)
-        pts[:, 0] = rng.normal(0, 0.4, num_points)
-        pts[:, 1] = rng.uniform(1.5, 4.0, num_points)
-        pts[:, 2] = rng.normal(-0.5, 0.4, num_points)
-        pts[:, 3:] = rng.random((num_points, 3))
-        out.append(Frustum(pts, np.arange(num_points), num_points, 0.1, upright_rotation(None)))
-    return out
+def _random_frustums(n: int, num_points: int, seed: int = 0) -> list:
+    return random_frustums(n, num_points, np.random.default_rng(seed))
 
 
 def _real_frustums(num_points: int) -> tuple[list[Frustum], list[int]]:

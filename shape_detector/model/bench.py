@@ -19,7 +19,9 @@ from ..frustum import Frustum
 from ..geometry import upright_rotation
 
 
-def _fake_frustums(n: int, num_points: int, rng: np.random.Generator) -> list[Frustum]:
+def random_frustums(n: int, num_points: int, rng: np.random.Generator) -> list[Frustum]:
+    """``n`` frustums of ``num_points`` random points shaped like a room ahead (frustum frame F,
+    metres; colour in [0, 1]): inputs for timing and for comparing runtimes."""
     out = []
     for _ in range(n):
         pts = np.zeros((num_points, 6), np.float32)
@@ -79,7 +81,7 @@ def bench_network(
     rng = np.random.default_rng(0)
     results = {}
     for c in counts:
-        fr = _fake_frustums(int(c), n_pts, rng)
+        fr = random_frustums(int(c), n_pts, rng)
         cls = [i % pred.config.num_classes for i in range(int(c))]
         times, cpu = _timed(lambda fr=fr, cls=cls: pred.predict(fr, cls), warmup, repeats,
                             dev == "cuda" and pred.backend == "torch")
@@ -120,7 +122,7 @@ def _bench_beside_python(pred, counts: Sequence[int], n_pts: int, rng: np.random
 
     beside = {}
     c = int(max(counts))
-    fr = _fake_frustums(c, n_pts, rng)
+    fr = random_frustums(c, n_pts, rng)
     cls = [i % pred.config.num_classes for i in range(c)]
     for name in ("onnxruntime", "traced", "eager"):  # one worker, as in the node's pipeline
         with warnings.catch_warnings():
@@ -194,7 +196,7 @@ def _bench_builtin_path(
     clf = ClassifierPredictor.from_file(DEFAULT_CLASSIFIER, pred.precision, trace, pred.backend)
     out = {}
     for c in counts:
-        fr = _fake_frustums(int(c), n_pts, rng)
+        fr = random_frustums(int(c), n_pts, rng)
 
         def run(fr: list[Frustum] = fr) -> None:
             # as the detector: features reused below, shapes left to the second pass
