@@ -137,3 +137,20 @@ def project_points(points: np.ndarray, K: np.ndarray) -> np.ndarray:
     p = np.asarray(points, dtype=np.float64)
     uvw = p @ np.asarray(K, dtype=np.float64).T
     return uvw[:, :2] / uvw[:, 2:3]
+
+
+def measured_depth(cam: np.ndarray, depth: np.ndarray, K: np.ndarray, min_z: float = 0.05) -> np.ndarray:
+    """The depth map's value (metres) at the pixel each camera-frame point (..., 3) projects to;
+    NaN for points nearer than ``min_z``, outside the image or on an invalid (0 / NaN) pixel.
+    Comparing it with the point's own z tells seen through (larger), surface or hidden."""
+    cam = np.asarray(cam, dtype=np.float64)
+    z = cam[..., 2]
+    h, w = depth.shape
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = np.floor(project_points(cam.reshape(-1, 3), K) + 0.5).reshape(*z.shape, 2)
+    u, v = uv[..., 0], uv[..., 1]
+    inside = (z > min_z) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    d = np.full(z.shape, np.nan)
+    d[inside] = depth[v[inside].astype(np.int64), u[inside].astype(np.int64)]
+    d[~(d > 0)] = np.nan
+    return d

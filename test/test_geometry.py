@@ -70,3 +70,15 @@ def test_rot_z_and_wrap():
 def test_project_points_pixel_centre_convention():
     K = np.array([[500.0, 0, 319.5], [0, 500.0, 239.5], [0, 0, 1]])
     np.testing.assert_allclose(project_points(np.array([[0, 0, 2.0]]), K), [[319.5, 239.5]])
+
+
+def test_measured_depth_reads_the_pixel_a_point_projects_to():
+    from shape_detector.geometry import measured_depth
+
+    K = np.array([[100.0, 0, 50.0], [0, 100.0, 40.0], [0, 0, 1]])
+    depth = np.full((80, 100), 3.0, np.float32)
+    depth[40, 60] = 0.0  # invalid pixel
+    pts = np.array([[0.0, 0.0, 2.0], [0.2, 0.0, 2.0], [0.0, 0.0, 0.01], [9.0, 0.0, 1.0]])
+    d = measured_depth(pts, depth, K)
+    assert d[0] == 3.0 and np.isnan(d[1:]).all()  # on an invalid pixel, too near, outside
+    assert measured_depth(pts.reshape(2, 2, 3), depth, K).shape == (2, 2)

@@ -48,7 +48,7 @@ import numpy as np
 
 from ..classes import CLASSES
 from ..frustum import pixel_points
-from ..geometry import box_corners, project_points
+from ..geometry import box_corners, measured_depth, project_points
 from .point_fit import PointSource, segmented_points, sorted_quantile
 from ..types import Object3D
 
@@ -122,16 +122,10 @@ def _seen_through(cam: np.ndarray, depth: np.ndarray, K: np.ndarray, p: CarvePar
     inside the image onto valid depth: ``free`` = the measured depth lies behind the point
     by more than the margin (seen through), ``surface`` = within the margin of it (an
     observed surface there). Points with something nearer in front are neither."""
-    h, w = depth.shape
     z = cam[..., 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = np.floor(project_points(cam.reshape(-1, 3), K) + 0.5).reshape(*z.shape, 2)
-    u, v = uv[..., 0], uv[..., 1]
-    inside = (z > 0.05) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    d = np.full(z.shape, np.nan)
-    d[inside] = depth[v[inside].astype(np.int64), u[inside].astype(np.int64)]
+    d = measured_depth(cam, depth, K)
     with np.errstate(invalid="ignore"):
-        known = inside & np.isfinite(d) & (d > 0)
+        known = np.isfinite(d)
         tol = p.margin + p.margin_per_m * z
         free = known & (d > z + tol)
         surface = known & (np.abs(d - z) <= tol)

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry import measured_depth
+
 UNKNOWN, FREE, OCCUPIED = -1, 0, 100
 
 
@@ -162,17 +164,9 @@ def floor_cells_seen(depth: np.ndarray, K: np.ndarray, T_world_camera: np.ndarra
     T = np.asarray(T_world_camera, dtype=np.float64)
     cam = (pw - T[:3, 3]) @ T[:3, :3]
     z = cam[:, 2]
-    ok = z > 0.1
-    u = np.full(z.shape, -1, np.int64)
-    v = np.full(z.shape, -1, np.int64)
-    u[ok] = np.floor(K[0, 0] * cam[ok, 0] / z[ok] + K[0, 2] + 0.5).astype(np.int64)
-    v[ok] = np.floor(K[1, 1] * cam[ok, 1] / z[ok] + K[1, 2] + 0.5).astype(np.int64)
-    h, w = depth.shape
-    ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    d = np.full(z.shape, np.nan)
-    d[ok] = depth[v[ok], u[ok]]
+    d = measured_depth(cam, depth, K, min_z=0.1)
     with np.errstate(invalid="ignore"):
-        seen = ok & np.isfinite(d) & (np.abs(d - z) <= band + 0.01 * z)
+        seen = np.isfinite(d) & (np.abs(d - z) <= band + 0.01 * z)
     return pw[seen, :2]
 
 

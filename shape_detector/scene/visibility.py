@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry import measured_depth
+
 
 
 @dataclass(frozen=True)
@@ -66,13 +68,8 @@ def classify_samples(world: np.ndarray, T_world_camera: np.ndarray, depth: np.nd
     if not front.any():
         return 0, 0, 0
     cam, z = cam[front], z[front]
-    u = np.floor(K[0, 0] * cam[:, 0] / z + K[0, 2] + 0.5).astype(np.int64)
-    v = np.floor(K[1, 1] * cam[:, 1] / z + K[1, 2] + 0.5).astype(np.int64)
-    h, w = depth.shape
-    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    d = np.full(z.shape, np.nan)
-    d[inside] = depth[v[inside], u[inside]]
-    known = np.isfinite(d) & (d > 0)
+    d = measured_depth(cam, depth, K)
+    known = np.isfinite(d)
     tol = p.margin + p.margin_per_m * z
     free = known & (d > z + tol)
     surface = known & (np.abs(d - z) <= tol)
