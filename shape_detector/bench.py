@@ -152,7 +152,7 @@ def bench_pipeline(
     print(
         f"pipeline[builtin, node's 2-stage pipeline, workers={node_workers}]: {res['ms_per_frame']:.1f} ms/frame throughput "
         f"({res['fps']:.1f} fps); latency p50 {res['latency_ms_p50']:.1f} ms, p95 {res['latency_ms_p95']:.1f} ms; "
-        f"first pass in the first stage for {100 * res['first_pass_early_share']:.0f}% of the frames "
+        f"the first stage ran {100 * res['first_pass_share']:.0f}% of the first pass "
         f"(pipeline_split {pipeline_split})",
         flush=True,
     )
@@ -203,11 +203,11 @@ def _bench_pipelined(det, scenes: list, split: str = "auto") -> dict:
     ``split``: the node's ``pipeline_split``."""
     import threading
 
-    from .detector import first_pass_early
+    from .detector import first_pass_share
     from .sync import LatestMailbox
 
     handoff: LatestMailbox = LatestMailbox()
-    early: list[bool] = []
+    early: list[float] = []
     latency: list[float] = []
     errors: list[BaseException] = []
 
@@ -219,9 +219,10 @@ def _bench_pipelined(det, scenes: list, split: str = "auto") -> dict:
                     return
                 t0 = time.perf_counter()
                 prepared = det.prepare(f.rgb, f.depth, f.K)
-                early.append(first_pass_early(det.last_timing) if split == "auto" else split == "network")
-                if early[-1]:  # as the node's pipeline_split
-                    det.first_pass(prepared)
+                share = first_pass_share(det.last_timing) if split == "auto" else float(split == "network")
+                early.append(share)  # as the node's pipeline_split
+                if share > 0.0:
+                    det.first_pass(prepared, share)
                 handoff.put((t0, prepared))
             handoff.wait_empty()
         except BaseException as e:  # noqa: BLE001 - re-raised by the caller's thread
@@ -253,7 +254,7 @@ def _bench_pipelined(det, scenes: list, split: str = "auto") -> dict:
         "fps": float(1e3 / ms),
         "latency_ms_p50": float(np.median(latency)),
         "latency_ms_p95": float(np.percentile(latency, 95)),
-        "first_pass_early_share": float(np.mean(early)),
+        "first_pass_share": float(np.mean(early)),
     }
 
 

@@ -22,6 +22,7 @@ from .classes import CLASS_TO_ID
 from .detector_config import DetectorConfig, make_config, preset, resolved_workers
 from .frustum import Frustum, extract_frustums, valid_depth
 from .geometry import upright_rotation
+from .model.prediction import refined_score
 from .inputs import normalize_inputs
 from .postprocess import Hook, PostContext, build_pipeline
 from .proposal_source import make_proposer
@@ -77,20 +78,20 @@ _BEFORE_KEYS = ("inputs_ms", "proposals_ms", "frustums_ms")
 _AFTER_KEYS = ("classifier_ms", "refine_ms", "post_ms")
 
 
-def first_pass_early(timing: dict[str, float] | None, margin: float = 0.1) -> bool:
-    """Whether a two-stage pipeline (one thread :meth:`ShapeDetector.prepare`, the other
-    :meth:`ShapeDetector.finish`) is faster with the network's first pass moved into the
-    first stage, judged from a frame's ``last_timing`` (ms): ``a`` before the network,
-    ``n`` the first pass, ``b`` after it; the pipeline runs at the pace of its slower
-    stage, ``max(a, n + b)`` or ``max(a + n, b)``; the first pass moves only when that
-    shortens the slower stage by more than ``margin`` (10%), so near balance the split does
-    not flip from frame to frame. False without timings."""
+def first_pass_share(timing: dict[str, float] | None) -> float:
+    """The share of a frame's frustums whose first pass a two-stage pipeline (one thread
+    :meth:`ShapeDetector.prepare`, the other :meth:`ShapeDetector.finish`) runs in its
+    first stage, so both take as long, judged from the previous frame's ``last_timing``
+    (ms): ``a`` before the network, ``n`` the whole first pass, ``b`` after it; the stages
+    take ``a + s n`` and ``(1 - s) n + b``. 0 without timings."""
     if not timing or "network_ms" not in timing:
-        return False
+        return 0.0
     a = sum(float(timing.get(k, 0.0)) for k in _BEFORE_KEYS)
     n = float(timing["network_ms"])
     b = sum(float(timing.get(k, 0.0)) for k in _AFTER_KEYS)
-    return max(a + n, b) < (1.0 - margin) * max(a, n + b)
+    if n <= 0.0:
+        return 0.0
+    return float(np.clip((n + b - a) / (2.0 * n), 0.0, 1.0))
 
 
 def classifier_option(text: str | None) -> str | bool | None:
@@ -342,30 +343,39 @@ class ShapeDetector:
         mode = self.config.mirror_tta
         return mode == "always" or (mode == "given" and frame.given_boxes)
 
-    def first_pass(self, frame: PreparedFrame) -> PreparedFrame:
+    def first_pass(self, frame: PreparedFrame, share: float = 1.0) -> PreparedFrame:
         """The network's first pass over a prepared frame's frustums (``frame.first``; its
         time in ``frame.timing["network_ms"]``), which :meth:`finish` otherwise runs itself.
-        The node's first stage calls it after :meth:`prepare` when the two stages are
-        lopsided (``pipeline_split="network"``). Reads only the weights: safe beside a
-        :meth:`finish` of another frame. Returns ``frame``."""
+        ``share`` (0..1): run it on only that share of the frustums (the first ones, rounded);
+        :meth:`finish` runs the rest. The node's first stage calls it after :meth:`prepare`
+        with the share that balances its two threads (:func:`first_pass_share`). Reads only
+        the weights: safe beside a :meth:`finish` of another frame. Returns ``frame``."""
+        done = len(frame.first or [])
+        stop = len(frame.frustums) if share >= 1.0 else done + int(round(share * (len(frame.frustums) - done)))
+        if stop <= done:
+            return frame
         t0 = time.perf_counter()
         class_ids = [CLASS_TO_ID[c] if c is not None else None for _, c, _ in frame.boxes]
         # the class-given second pass reuses the first pass's segmentation features
         keep = self.config.refine and any(c is None for c in class_ids)
-        frame.first = self.predictor.predict(frame.frustums, class_ids, mirror=self._mirror(frame), keep_features=keep,
-                                             shapes=not self._second_pass_replaces_shapes(class_ids))
-        frame.timing["network_ms"] = 1e3 * (time.perf_counter() - t0)
+        preds = self.predictor.predict(frame.frustums[done:stop], class_ids[done:stop], mirror=self._mirror(frame),
+                                       keep_features=keep, shapes=not self._second_pass_replaces_shapes(class_ids))
+        frame.first = list(frame.first or []) + list(preds)
+        frame.timing["network_ms"] = frame.timing.get("network_ms", 0.0) + 1e3 * (time.perf_counter() - t0)
         return frame
 
     def _second_pass_replaces_shapes(self, class_ids: Sequence[int | None]) -> bool:
         """Whether no first-pass primitive can reach the output: every frustum is
         class-agnostic, so it either gets the class-given second pass (score >=
-        ``refine_min_score``; that pass's primitives replace the first's) or scores below
-        ``refine_min_score`` <= ``score_threshold`` and is not published. The first pass
-        then skips the shape branch."""
+        ``refine_min_score``; that pass's primitives replace the first's), or scores below
+        ``refine_min_score`` <= ``score_threshold``, or is a duplicate suppressed before the
+        second pass (``refine_nms``) whose decayed score (<= ``nms_decay``) stays below
+        ``score_threshold``; neither is published. The first pass then skips the shape branch."""
         cfg = self.config
         return (bool(class_ids) and cfg.refine and all(c is None for c in class_ids)
-                and cfg.refine_min_score <= cfg.score_threshold and bool(getattr(self.predictor, "has_class_head", False)))
+                and cfg.refine_min_score <= cfg.score_threshold
+                and (not cfg.refine_nms or cfg.nms_decay < cfg.score_threshold)
+                and bool(getattr(self.predictor, "has_class_head", False)))
 
     def finish(self, frame: PreparedFrame, hook: Hook | None = None) -> list[Object3D]:
         """Network (first pass; for built-in proposals the proposal classifier and the
@@ -374,8 +384,7 @@ class ShapeDetector:
         its objects, sorted by score. Sets ``last_up``, ``last_up_confidence``,
         ``last_floor_height`` and ``last_timing`` (milliseconds per stage: ``network_ms``
         is the first pass, ``classifier_ms`` and ``refine_ms`` the other two)."""
-        if frame.first is None:
-            self.first_pass(frame)
+        self.first_pass(frame)  # the frustums the first stage left (all when it ran none)
         cfg = self.config
         t_net = time.perf_counter()
         preds = list(frame.first or [])
@@ -384,9 +393,10 @@ class ShapeDetector:
             preds = reclassify(self.classifier, frame, preds)
         t_cls = time.perf_counter()
         if cfg.refine and agnostic:
-            second = self.predictor.refine([frame.frustums[i] for i in agnostic], [preds[i] for i in agnostic],
+            todo = self._suppress_duplicates(frame, preds, agnostic) if cfg.refine_nms else agnostic
+            second = self.predictor.refine([frame.frustums[i] for i in todo], [preds[i] for i in todo],
                                            self._mirror(frame), cfg.refine_min_score)
-            for i, p in zip(agnostic, second):
+            for i, p in zip(todo, second):
                 preds[i] = p
         t4 = time.perf_counter()
         objects = [
@@ -405,6 +415,31 @@ class ShapeDetector:
         timing["num_frustums"] = float(len(frame.boxes))
         self.last_timing = timing
         return objects
+
+    def _suppress_duplicates(self, frame: PreparedFrame, preds: list, agnostic: list[int]) -> list[int]:
+        """The class-agnostic frustums worth a second pass: among those scored at least
+        ``refine_min_score``, the survivors of a 3D NMS over their first-pass boxes (the
+        final NMS would drop the others' refined boxes anyway); the rest of ``agnostic``
+        as it is. The suppressed ones keep their first pass with the score times
+        ``nms_decay`` (in place in ``preds``)."""
+        from dataclasses import replace
+
+        from .postprocess.nms import nms_keep
+
+        cfg = self.config
+        cand = [i for i in agnostic if preds[i].score >= cfg.refine_min_score and preds[i].num_points_valid > 0]
+        if len(cand) < 2:
+            return agnostic
+        boxes = [_to_object(frame.boxes[i][0], frame.frustums[i], preds[i]) for i in cand]
+        for b, i in zip(boxes, cand):
+            # ranked by the score the second pass would give if its objectness matched the first's
+            b.score = refined_score(preds[i].score, preds[i].objectness)
+        _, kept = nms_keep(boxes, cfg.nms_iou)
+        survivors = {cand[k] for k in kept}
+        for i in cand:
+            if i not in survivors:
+                preds[i] = replace(preds[i], score=float(preds[i].score) * cfg.nms_decay)
+        return [i for i in agnostic if i in survivors or i not in cand]
 
     def warm_up(self) -> None:
         """Run the pipeline once on a tiny synthetic frame (floor + a box, 160x120), so the

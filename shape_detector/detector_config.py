@@ -48,7 +48,10 @@ class DetectorConfig:
                            "class given (that class's box prior)", node="dynamic")
     refine_min_score: float = setting(0.3, "score a built-in proposal needs for the class-given second pass",
                                       range=(0.0, 1.0), node="dynamic")
-    mirror_tta: str = setting("given", "also run each frustum mirrored and merge: given (external boxes only), "
+    refine_nms: bool = setting(True, "before the second pass, suppress built-in proposals whose first-pass box "
+                               "duplicates a better one (3D NMS at nms_iou; their score times nms_decay): "
+                               "the second pass then runs on one proposal per object", node="dynamic")
+    mirror_tta: str = setting("never", "also run each frustum mirrored and merge: given (external boxes only), "
                               "always or never", choices=("given", "always", "never"))
     precision: str = setting("auto", "network arithmetic: auto (bfloat16 for 4+ frustums on CPUs with AMX, "
                              "else fp32), fp32 or bf16", choices=PRECISIONS)
@@ -82,7 +85,7 @@ class DetectorConfig:
 #: preset name -> the changes it makes to the defaults
 PRESETS: dict[str, dict[str, Any]] = {
     "realtime": {},
-    "accurate": {"max_objects": 25, "workers": 2, "precision": "fp32"},
+    "accurate": {"max_objects": 25, "workers": 2, "precision": "fp32", "mirror_tta": "given", "refine_nms": False},
 }
 
 

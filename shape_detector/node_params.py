@@ -19,7 +19,8 @@ class NodeConfig:
     pipeline: bool = setting(True, "two worker threads: the next frame's gravity, proposals and frustums run while "
                              "the network finishes the current one (output in input order); false = one thread")
     pipeline_split: str = setting("auto", "with pipeline: where the network's first pass runs: prepare (second "
-                                  "thread), network (first thread) or auto (whichever balances the threads)",
+                                  "thread), network (first thread) or auto (split over both, the share of the "
+                                  "frame's frustums that balances the threads)",
                                   choices=("auto", "prepare", "network"))
     sync_slop: float = setting(0.02, "approximate time synchroniser slop between image and depth stamps, s",
                                range=(0.0, 10.0), node="dynamic")

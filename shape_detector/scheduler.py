@@ -179,8 +179,9 @@ class FrameScheduler:
             if self.handoff is not None and hasattr(det, "prepare") and hasattr(det, "finish"):
                 job.prepared = det.prepare(pf.rgb, pf.depth, pf.K, boxes2d=pf.boxes2d, up=fs.up)
                 job.detector = det
-                if hasattr(det, "first_pass") and self._first_pass_early(det):
-                    det.first_pass(job.prepared)
+                share = self._first_pass_share(det) if hasattr(det, "first_pass") else 0.0
+                if share > 0.0:
+                    det.first_pass(job.prepared, share)
                     self.host.stats.count("first_pass_early")
             else:
                 job.objects = list(det.detect(pf.rgb, pf.depth, pf.K, boxes2d=pf.boxes2d, up=fs.up))
@@ -190,14 +191,14 @@ class FrameScheduler:
             job.detect_ms = (time.perf_counter() - td) * 1e3
         return job
 
-    def _first_pass_early(self, det: Any) -> bool:
-        """Whether the first stage also runs the network's first pass."""
+    def _first_pass_share(self, det: Any) -> float:
+        """The share of the frame's frustums whose first pass the first stage runs."""
         split = self.host.p["pipeline_split"]
         if split != "auto":
-            return split == "network"
-        from .detector import first_pass_early
+            return 1.0 if split == "network" else 0.0
+        from .detector import first_pass_share
 
-        return first_pass_early(getattr(det, "last_timing", None))
+        return first_pass_share(getattr(det, "last_timing", None))
 
     def complete(self, job: Job) -> None:
         """The rest of the detector's work on ``job`` (if any), then publish and count."""

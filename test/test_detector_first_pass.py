@@ -12,7 +12,7 @@ from test_model_scene import make_frame
 
 @pytest.fixture(scope="module")
 def detector():
-    return ShapeDetector(score_threshold=0.0, refine_min_score=0.0)
+    return ShapeDetector(score_threshold=0.0, refine_min_score=0.0, refine_nms=False)
 
 
 def _objects(det, frame, boxes=None):
@@ -50,3 +50,30 @@ def test_first_pass_keeps_shapes_where_they_may_be_published():
     assert det._second_pass_replaces_shapes([None, None])
     assert not det._second_pass_replaces_shapes([None, 3])  # a given class gets no second pass
     assert not det._second_pass_replaces_shapes([])
+    # duplicates suppressed before the second pass keep their first pass, published when
+    # their decayed score reaches the threshold
+    assert not ShapeDetector(score_threshold=0.05)._second_pass_replaces_shapes([None])
+    assert ShapeDetector(score_threshold=0.05, refine_nms=False, refine_min_score=0.05)._second_pass_replaces_shapes([None])
+
+
+def test_duplicates_are_suppressed_before_the_second_pass(monkeypatch):
+    frames = [make_frame(seed=s) for s in (1, 2, 3)]
+    runs = {}
+    for nms in (True, False):
+        det = ShapeDetector(refine_nms=nms)
+        sizes = []
+        orig = det.predictor.refine
+
+        def spy(frs, *a, _orig=orig, _sizes=sizes, **k):
+            _sizes.append(len(frs))
+            return _orig(frs, *a, **k)
+
+        monkeypatch.setattr(det.predictor, "refine", spy)
+        runs[nms] = ([_objects(det, f) for f in frames], sum(sizes))
+    (with_nms, n_nms), (without, n_all) = runs[True], runs[False]
+    assert n_nms < n_all  # fewer frustums run the second pass
+    for a, b in zip(with_nms, without):
+        assert abs(len(a) - len(b)) <= 1  # the published objects are (nearly) the same ones
+        for p in a:  # each published object has a counterpart of the same class nearby
+            assert any(q.class_name == p.class_name and np.linalg.norm(q.center - p.center) < 0.3 for q in b)
+        assert all(len(p.primitives) > 0 for p in a)

@@ -110,29 +110,33 @@ def test_reclassify_keeps_empty_frustums_at_zero(scene):
     assert out[0].score == 0.0 and out[1].score == pytest.approx(0.6)
 
 
-def test_first_pass_early_balances_the_two_stages():
-    from shape_detector.detector import first_pass_early
+def test_first_pass_share_balances_the_two_stages():
+    from shape_detector.detector import first_pass_share
 
-    # before 10 ms, network 30, after 40: early gives max(40, 40) against max(10, 70)
-    assert first_pass_early({"proposals_ms": 10.0, "network_ms": 30.0, "refine_ms": 40.0})
-    # before 30, network 10, after 15: max(40, 15) against max(30, 25) -> stay
-    assert not first_pass_early({"proposals_ms": 30.0, "network_ms": 10.0, "post_ms": 15.0})
-    # a gain under the 10% margin does not move it
-    assert not first_pass_early({"proposals_ms": 20.0, "network_ms": 2.0, "post_ms": 20.0})
-    assert not first_pass_early({}) and not first_pass_early(None)
+    # before 10 ms, network 30, after 40: a share s gives 10 + 30 s against 30 (1 - s) + 40
+    assert first_pass_share({"proposals_ms": 10.0, "network_ms": 30.0, "refine_ms": 40.0}) == pytest.approx(1.0)
+    assert first_pass_share({"proposals_ms": 10.0, "network_ms": 20.0, "refine_ms": 10.0}) == pytest.approx(0.5)
+    s = first_pass_share({"proposals_ms": 12.0, "network_ms": 14.0, "classifier_ms": 3.0, "post_ms": 4.0})
+    assert 12.0 + 14.0 * s == pytest.approx(14.0 * (1 - s) + 7.0)
+    # a first stage already the slower one keeps none of it
+    assert first_pass_share({"proposals_ms": 30.0, "network_ms": 10.0, "post_ms": 15.0}) == 0.0
+    assert first_pass_share({}) == 0.0 and first_pass_share(None) == 0.0
 
 
 def test_first_pass_in_the_first_stage_gives_the_same_objects(scene):
     det = ShapeDetector(score_threshold=0.0)
     ref = det.detect(scene.rgb, scene.depth, scene.K)
-    prep = det.first_pass(det.prepare(scene.rgb, scene.depth, scene.K))
-    assert prep.first is not None and "network_ms" in prep.timing
-    got = det.finish(prep)
-    assert len(got) == len(ref) >= 1
-    for g, r in zip(got, ref):
-        assert g.class_name == r.class_name and g.score == pytest.approx(r.score)
-        np.testing.assert_allclose(g.center, r.center)
-    assert {"network_ms", "classifier_ms", "refine_ms", "post_ms", "total_ms"} <= set(det.last_timing)
+    for share in (1.0, 0.5, 0.0):
+        prep = det.first_pass(det.prepare(scene.rgb, scene.depth, scene.K), share)
+        n = len(prep.frustums)
+        assert len(prep.first or []) == (n if share == 1.0 else int(round(share * n)))
+        got = det.finish(prep)
+        assert len(prep.first) == n
+        assert len(got) == len(ref) >= 1
+        for g, r in zip(got, ref):
+            assert g.class_name == r.class_name and g.score == pytest.approx(r.score, abs=1e-6)
+            np.testing.assert_allclose(g.center, r.center, atol=1e-6)
+        assert {"network_ms", "classifier_ms", "refine_ms", "post_ms", "total_ms"} <= set(det.last_timing)
 
 
 @pytest.mark.parametrize("workers", [1, 2])

@@ -304,7 +304,7 @@ class ThreeStageDetector(StagedDetector):
         super().__init__(**kwargs)
         self.last_timing = {"proposals_ms": 10.0, "network_ms": 30.0, "refine_ms": 40.0}
 
-    def first_pass(self, z):
+    def first_pass(self, z, share=1.0):
         self.stages.append(("first_pass", threading.current_thread().name, time.monotonic(), time.monotonic()))
         return z
 

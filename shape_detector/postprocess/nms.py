@@ -80,9 +80,29 @@ def nms_3d(
     height intervals are computed once per box (all boxes of a frame share gravity), and
     boxes whose bounding spheres do not touch are never intersected.
     """
-    ordered = sorted(objects, key=lambda o: -o.score)
-    if not ordered:
-        return []
+    order, kept = nms_keep(objects, iou_threshold, containment_threshold)
+    kept_set = set(kept)
+    suppressed: list[Object3D] = []
+    if decay > 0.0:
+        for i in order:
+            if i not in kept_set and objects[i].score * decay >= min_score:
+                o = copy.copy(objects[i])
+                o.score = float(o.score) * decay
+                if o.class_scores is not None:
+                    o.class_scores = np.asarray(o.class_scores, dtype=np.float64) * decay
+                suppressed.append(o)
+    return [objects[i] for i in kept] + suppressed
+
+
+def nms_keep(
+    objects: list[Object3D], iou_threshold: float = 0.25, containment_threshold: float = 0.7
+) -> tuple[list[int], list[int]]:
+    """Greedy NMS as :func:`nms_3d` without rescoring: ``(order, kept)``, the indices of
+    ``objects`` by descending score and the kept ones among them (in that order)."""
+    order = sorted(range(len(objects)), key=lambda i: -objects[i].score)
+    if not order:
+        return [], []
+    ordered = [objects[i] for i in order]
     centers = np.array([np.asarray(o.center, np.float64).reshape(3) for o in ordered])
     radii = np.array([0.5 * float(np.linalg.norm(o.size)) for o in ordered])
     near = np.linalg.norm(centers[:, None] - centers[None], axis=-1) < radii[:, None] + radii[None]
@@ -94,17 +114,10 @@ def nms_3d(
         return _prism_overlap(prisms[i], prisms[k])
 
     kept: list[int] = []
-    suppressed: list[Object3D] = []
     for i in range(len(ordered)):
         if all(
             iou <= iou_threshold and contained <= containment_threshold
             for iou, contained in (overlap(i, k) for k in kept if near[i, k])
         ):
             kept.append(i)
-        elif decay > 0.0 and ordered[i].score * decay >= min_score:
-            o = copy.copy(ordered[i])
-            o.score = float(o.score) * decay
-            if o.class_scores is not None:
-                o.class_scores = np.asarray(o.class_scores, dtype=np.float64) * decay
-            suppressed.append(o)
-    return [ordered[i] for i in kept] + suppressed
+    return order, [order[i] for i in kept]
