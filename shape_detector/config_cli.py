@@ -61,7 +61,17 @@ def add_detector_flags(parser: argparse.ArgumentParser, default_preset: str = "r
                                help=f"{spec.doc} (preset: {'on' if default else 'off'})")
         else:
             group.add_argument(flag, dest=name, type=_parser_for(spec), default=None, metavar=name.upper(),
-                               help=f"{spec.doc} [{valid_values(spec)}] (preset: {default!r})")
+                               help=f"{spec.doc}; {valid_values(spec)} (preset: {default!r})")
+
+
+def add_setting_flags(group: Any, all_specs: dict[str, Spec], names: Iterable[str]) -> None:
+    """A ``--name`` flag (dest ``name``, default the setting's) for each of ``names`` of
+    ``all_specs`` (e.g. :func:`~shape_detector.settings.specs` of the node's config) on
+    ``group`` (a parser or an argument group); invalid values are refused with the reason."""
+    for name in names:
+        spec = all_specs[name]
+        group.add_argument("--" + name.replace("_", "-"), dest=name, type=_parser_for(spec), default=spec.default,
+                           metavar=name.upper(), help=f"{spec.doc}; {valid_values(spec)} (default {spec.default!r})")
 
 
 def config_from_args(args: argparse.Namespace, **changes: Any) -> DetectorConfig:

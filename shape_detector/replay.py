@@ -29,8 +29,13 @@ from .bags.player import PlaySummary, play_bag
 from .bags.scene_record import SceneOptions
 from .bags.source import DETECTIONS_TOPIC, MAP_TOPIC, MARKERS_TOPIC, SCENE_TOPIC, BagReadError
 from .bags.summary import ReplaySummary
-from .config_cli import add_detector_flags
+from .config_cli import add_detector_flags, add_setting_flags
 from .detector_config import PROPOSAL_SOURCES
+from .node_params import NodeConfig
+from .settings import specs
+
+#: the scene map's settings, shared with the node (its parameters of these names)
+SCENE_SETTINGS = ("grid_resolution", "inflation_radius", "scene_confirm_observations", "scene_delete_misses")
 
 
 def _check_device_flag(p: argparse.ArgumentParser) -> None:
@@ -47,8 +52,11 @@ def scene_options(args: argparse.Namespace) -> SceneOptions | None:
     ``--odom-topic``, ``--pose-topic`` is given."""
     if not (args.scene_out or args.world_frame or args.odom_topic or args.pose_topic):
         return None
+    from .node_scene import scene_config
+
     return SceneOptions(world_frame=args.world_frame or "odom", scene_out=args.scene_out,
-                        odom_topic=args.odom_topic, pose_topic=args.pose_topic)
+                        odom_topic=args.odom_topic, pose_topic=args.pose_topic,
+                        config=scene_config({**{k: getattr(args, k) for k in SCENE_SETTINGS}, "world_frame": "odom"}))
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
@@ -89,6 +97,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
                          "and the final map to this JSON file")
     sc.add_argument("--world-frame", type=ca.topic, default=None,
                     help="fixed frame of the scene (default odom); giving it turns the scene on")
+    add_setting_flags(sc, specs(NodeConfig), SCENE_SETTINGS)
     pose = sc.add_mutually_exclusive_group()
     pose.add_argument("--odom-topic", type=ca.topic, default=None,
                       help="camera pose from this nav_msgs/Odometry topic (default: /tf + /tf_static)")

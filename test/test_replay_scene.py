@@ -115,6 +115,16 @@ def test_scene_flags():
     opts = scene_options(p.parse_args(["bag", "-o", "o", "--scene-out", "s.json", "--odom-topic", "/odom"]))
     assert opts.world_frame == "odom" and opts.odom_topic == "/odom" and str(opts.scene_out) == "s.json"
     assert scene_options(p.parse_args(["bag", "-o", "o", "--world-frame", "map"])).world_frame == "map"
+    cfg = opts.config  # the node's defaults
+    assert (cfg.grid_resolution, cfg.confirm_observations, cfg.delete_misses) == (0.05, 3, 3)
+    opts = scene_options(p.parse_args(["bag", "-o", "o", "--scene-out", "s.json", "--grid-resolution", "0.1",
+                                       "--scene-confirm-observations", "5", "--scene-delete-misses", "2",
+                                       "--inflation-radius", "0.3"]))
+    cfg = opts.config
+    assert (cfg.grid_resolution, cfg.confirm_observations, cfg.delete_misses, cfg.inflation_radius) == (0.1, 5, 2, 0.3)
+    for bad in (["--grid-resolution", "5"], ["--scene-confirm-observations", "0"]):
+        with pytest.raises(SystemExit):
+            p.parse_args(["bag", "-o", "o", *bad])
     with pytest.raises(SystemExit):
         p.parse_args(["bag", "-o", "o", "--odom-topic", "/a", "--pose-topic", "/b"])
 
@@ -124,11 +134,12 @@ def test_cli_scene_out_with_odometry(walk_bag, tmp_path):
 
     out, js = tmp_path / "out", tmp_path / "scene.json"
     r = _cli(str(walk_bag), "-o", str(out), "--scene-out", str(js), "--odom-topic", "/odom", "--no-progress",
-             "--json", "--detector", "test_replay:FakeDetector", "--max-objects", "5")
+             "--json", "--detector", "test_replay:FakeDetector", "--max-objects", "5", "--grid-resolution", "0.1")
     assert r.returncode == 0, r.stderr + r.stdout
     summary = json.loads(r.stdout)
     assert summary["scene"]["pose_source"] == "/odom" and summary["scene"]["frames"] == FRAMES
-    assert json.loads(js.read_text())["frame_id"] == "odom"
+    scene = json.loads(js.read_text())
+    assert scene["frame_id"] == "odom" and scene["grid"]["resolution"] == pytest.approx(0.1)
     assert _topic_count(out, SCENE_TOPIC) == FRAMES
 
 

@@ -11,14 +11,17 @@ a frame whose transform is missing is skipped by the scene and counted.
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..poses import CameraPoseSource, TransformLookupError
 from .source import ODOMETRY_T, POSE_STAMPED_T, TF_T, BagReadError, open_bag
+
+if TYPE_CHECKING:
+    from ..scene import SceneConfig
 
 
 @dataclass
@@ -29,6 +32,9 @@ class SceneOptions:
     scene_out: str | Path | None = None
     odom_topic: str | None = None
     pose_topic: str | None = None
+    #: the map's own settings (the node's grid_resolution, inflation_radius,
+    #: scene_confirm_observations, scene_delete_misses); None = the SceneConfig defaults
+    config: SceneConfig | None = None
 
 
 @dataclass
@@ -119,7 +125,8 @@ class SceneRecorder:
         self.opts = opts
         self.poses, source = load_poses(in_path, opts)
         self.stats = SceneStats(world_frame=opts.world_frame, pose_source=source)
-        self.map = SceneMap(SceneConfig(world_frame=opts.world_frame))
+        base = opts.config or SceneConfig()
+        self.map = SceneMap(replace(base, world_frame=opts.world_frame))
         if self.poses is None and log is not None:
             log(f"scene: no camera pose in the bag, {source}")
 
