@@ -22,8 +22,8 @@ from .classes import CLASS_TO_ID
 from .detector_config import DetectorConfig, make_config, preset, resolved_workers
 from .frustum import Frustum, extract_frustums, valid_depth
 from .geometry import upright_rotation
-from .model.prediction import refined_score
 from .inputs import normalize_inputs
+from .model.prediction import refined_score
 from .postprocess import Hook, PostContext, build_pipeline
 from .proposal_source import make_proposer
 from .types import Object3D
