@@ -16,6 +16,7 @@ from shape_detector.model.predictor import FrustumPrediction, FrustumPredictor
 
 from test_model_scene import make_frame
 from tolerances import ATOL, RTOL, outputs_differ
+from small_net import save_small_weights
 
 
 
@@ -26,11 +27,7 @@ SMALL = dict(num_points=128, num_object_points=64, seg_widths=(16, 16, 32), seg_
 
 @pytest.fixture(scope="module")
 def weights(tmp_path_factory):
-    torch.manual_seed(0)
-    net = FrustumShapeNet(ModelConfig(**SMALL))
-    p = tmp_path_factory.mktemp("w") / "w.pt"
-    save_weights(net, p, meta={"tasks": ["box", "cls", "shape"]})
-    return p
+    return save_small_weights(tmp_path_factory.mktemp("w") / "w.pt", **SMALL)
 
 
 def test_network_forward_shapes_single_frustum_eval():

@@ -8,7 +8,6 @@ import os
 import shutil
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -54,8 +53,8 @@ class MoodyDetector:
 @pytest.fixture(scope="module")
 def fuzz_node(ros_context):
     rclpy = pytest.importorskip("rclpy")
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from ros_spin import spinning
 
     from msg_conversion import rclpy_types
     from shape_detector.node import DetectorNode
@@ -74,22 +73,9 @@ def fuzz_node(ros_context):
     }
     markers: list = []
     tester.create_subscription(T.MarkerArray, "/sd_fuzz/markers", markers.append, qos)
-    ex = SingleThreadedExecutor(context=ros_context)
-    ex.add_node(node)
-    ex.add_node(tester)
-    th = threading.Thread(target=ex.spin, daemon=True)
-    th.start()
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and not all(p.get_subscription_count() for p in pubs.values()):
-        time.sleep(0.05)
-    while time.monotonic() < deadline and not node.markers_pub.get_subscription_count():
-        time.sleep(0.05)
-    time.sleep(0.2)
-    yield node, det, pubs, markers, T
-    ex.shutdown(timeout_sec=2)
-    th.join(timeout=5)
-    node.destroy_node()
-    tester.destroy_node()
+    with spinning(ros_context, (node, tester), [*pubs.values(), node.markers_pub]):
+        time.sleep(0.2)
+        yield node, det, pubs, markers, T
 
 
 def _image(T, w, h, enc, data, step=None, stamp=0, frame="cam"):

@@ -3,7 +3,6 @@ camera_info and an Odometry topic on loopback; ~/get_plan (nav_msgs/srv/GetPlan)
 
 from __future__ import annotations
 
-import threading
 import time
 
 import numpy as np
@@ -14,7 +13,6 @@ pytest.importorskip("nav_msgs.srv")
 
 from nav_msgs.msg import OccupancyGrid, Odometry  # noqa: E402
 from nav_msgs.srv import GetPlan  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 
@@ -25,6 +23,7 @@ from shape_detector.poses import matrix_to_quaternion  # noqa: E402
 from shape_detector.scene import NavGrid, SceneMap  # noqa: E402
 from shape_detector.scene.json_io import scene_to_dict  # noqa: E402
 from shape_detector.types import Object3D  # noqa: E402
+from ros_spin import spinning  # noqa: E402
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]
 
@@ -85,19 +84,8 @@ def scene_node(ros_context):
     test.create_subscription(types.MarkerArray, f"/{name}/scene", h.scene.append, qos)
     test.create_subscription(OccupancyGrid, f"/{name}/map", h.maps.append, latched)
     h.client = test.create_client(GetPlan, f"/{name}/get_plan")
-    executor = SingleThreadedExecutor(context=ros_context)
-    executor.add_node(node)
-    executor.add_node(test)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and not all(p.get_subscription_count() for p in h.pubs.values()):
-        time.sleep(0.05)
-    yield h
-    executor.shutdown(timeout_sec=2.0)
-    thread.join(timeout=5)
-    node.destroy_node()
-    test.destroy_node()
+    with spinning(ros_context, (node, test), h.pubs.values()):
+        yield h
 
 
 def wait_for(cond, timeout: float = 10.0) -> bool:

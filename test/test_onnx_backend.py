@@ -20,11 +20,10 @@ from shape_detector.frustum import Frustum, extract_frustum  # noqa: E402
 from shape_detector.model import onnx_backend  # noqa: E402
 from shape_detector.model.bench import random_frustums  # noqa: E402
 from shape_detector.model.config import ModelConfig  # noqa: E402
-from shape_detector.model.io import save_weights  # noqa: E402
-from shape_detector.model.network import FrustumShapeNet  # noqa: E402
 from shape_detector.model.predictor import FrustumPredictor  # noqa: E402
 
 from test_model_scene import make_frame  # noqa: E402
+from small_net import save_small_weights  # noqa: E402
 
 SMALL = dict(num_points=128, num_object_points=64, seg_widths=(16, 16, 32), seg_head_widths=(16,),
              tnet_widths=(16, 32), tnet_fc=(16,), box_widths=(16, 32), box_fc=(32,), shape_fc=(32,), cls_fc=(16,),
@@ -39,11 +38,7 @@ BOX_ATOL_M = 5e-3
 
 @pytest.fixture(scope="module")
 def weights(tmp_path_factory):
-    torch.manual_seed(0)
-    net = FrustumShapeNet(ModelConfig(**SMALL))
-    p = tmp_path_factory.mktemp("w") / "w.pt"
-    save_weights(net, p, meta={"tasks": ["box", "cls", "shape"]})
-    return p
+    return save_small_weights(tmp_path_factory.mktemp("w") / "w.pt", **SMALL)
 
 
 @pytest.fixture(scope="module")
