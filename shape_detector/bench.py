@@ -56,6 +56,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
                    help="network, pipeline: the eager forward instead of the TorchScript graphs")
     p.add_argument("--pipeline-split", default="auto", choices=("auto", "prepare", "network"),
                    help="pipeline: where the node's pipeline runs the network's first pass (its pipeline_split)")
+    p.add_argument("--against", default=None, choices=PRECISIONS,
+                   help="pipeline: also time detect() in this precision, alternating frames with --precision "
+                        "in one process (a paired comparison that the VM's drift does not bias)")
     p.add_argument("--bag", default=str(Path(__file__).resolve().parents[1] / "bags" / "sample"))
     p.add_argument("--json", default=None, help="also write the results here")
 
@@ -104,13 +107,15 @@ def bench_pipeline(
     score_threshold: float | None = None,
     data: str | None = None,
     peer: bool = True,
+    against: str | None = None,
 ) -> dict:
     """Median / p95 ms per VGA frame of serial ``ShapeDetector.detect`` (the realtime preset;
     arguments that are not None change its settings) with GT boxes (``gt_boxes``), with 10
     given boxes (``given10``, :func:`given_boxes`) and with built-in proposals
     (``builtin``), the F-PointNet v1 forward of 10 x 1024 points in PyTorch beside it
     (``peer``: :mod:`.model.fpointnet_v1`), then the built-in throughput with the node's
-    two-thread pipeline."""
+    two-thread pipeline. ``against``: another precision, timed alternately with this one on the
+    same frames (:func:`_bench_paired`)."""
     from .detector import ShapeDetector
     from .detector_config import resolved_workers
 
@@ -130,6 +135,11 @@ def bench_pipeline(
     out: dict[str, dict] = {}
     for mode in ("gt_boxes", "given10", "builtin"):
         out[mode] = _bench_mode(det, scenes, mode)
+    if against is not None:
+        other = ShapeDetector(**{**{k: v for k, v in overrides.items() if v is not None}, "precision": against})
+        other.warm_up()
+        for mode in ("given10", "builtin"):
+            out[f"paired_{mode}"] = _bench_paired(det, other, scenes, mode)
     if peer:
         from .model.fpointnet_v1 import time_fpointnet_v1
 
@@ -192,6 +202,28 @@ def _bench_mode(det, scenes: list, mode: str) -> dict:
         f"post {res['post_ms_p50']:.1f} ms",
         flush=True,
     )
+    return res
+
+
+def _bench_paired(det, other, scenes: list, mode: str) -> dict:
+    """``det`` and ``other`` timed on each of ``scenes`` in turn (boxes of ``mode``: ``given10``
+    or ``builtin``): medians and the median per-frame ratio ``det / other``; prints one line."""
+    times: dict[str, list[float]] = {"a": [], "b": []}
+    net: dict[str, list[float]] = {"a": [], "b": []}
+    for f in scenes:
+        boxes = given_boxes(f) if mode == "given10" else None
+        for key, d in (("a", det), ("b", other)):
+            t0 = time.perf_counter()
+            d.detect(f.rgb, f.depth, f.K, boxes2d=boxes)
+            times[key].append(1e3 * (time.perf_counter() - t0))
+            net[key].append(d.last_timing.get("network_ms", 0.0) + d.last_timing.get("refine_ms", 0.0))
+    ratio = float(np.median(np.asarray(times["a"]) / np.asarray(times["b"])))
+    res = {"ms_p50": float(np.median(times["a"])), "other_ms_p50": float(np.median(times["b"])),
+           "network_ms_p50": float(np.median(net["a"])), "other_network_ms_p50": float(np.median(net["b"])),
+           "ratio": ratio}
+    print(f"paired[{mode}]: precision {det.predictor.precision} {res['ms_p50']:.1f} ms (network "
+          f"{res['network_ms_p50']:.1f} ms) against {other.predictor.precision} {res['other_ms_p50']:.1f} ms "
+          f"(network {res['other_network_ms_p50']:.1f} ms): {ratio:.3f}x, median of per-frame ratios", flush=True)
     return res
 
 
@@ -281,7 +313,7 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
             precision=args.precision, max_objects=args.max_objects, classifier=not args.no_classifier,
             refine=not args.no_refine, pipeline_split=args.pipeline_split, trace=not args.no_trace,
             free_space=not args.no_free_space, backend=args.backend, score_threshold=args.score_threshold,
-            data=args.data, peer=not args.no_peer,
+            data=args.data, peer=not args.no_peer, against=args.against,
         )
     if target == "node":
         from .node_bench import bench_node

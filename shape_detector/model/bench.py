@@ -125,9 +125,11 @@ def _bench_beside_python(pred, counts: Sequence[int], n_pts: int, rng: np.random
     fr = random_frustums(c, n_pts, rng)
     cls = [i % pred.config.num_classes for i in range(c)]
     for name in ("onnxruntime", "traced", "eager"):  # one worker, as in the node's pipeline
+        torch_precision = "fp32" if precision == "int8" else precision  # int8 graphs are onnxruntime's
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            p = FrustumPredictor(weights, device=device, workers=1, precision=precision, trace=name != "eager",
+            p = FrustumPredictor(weights, device=device, workers=1, trace=name != "eager",
+                                 precision=precision if name == "onnxruntime" else torch_precision,
                                  backend="onnxruntime" if name == "onnxruntime" else "torch")
         beside[name] = float(np.median(_beside_busy_python(lambda p=p: p.predict(fr, cls), warmup=2, repeats=3)))
     if verbose:

@@ -29,6 +29,7 @@ class ClassifierPredictor:
 
     def __init__(self, model: Any, precision: str = "fp32", trace: bool = True, backend: str = "auto",
                  num_threads: int = 1) -> None:
+        precision = _no_int8(precision)
         self.precision = precision
         self.backend = resolve_backend(backend, precision, trace)
         self.model = model.eval().fuse_batchnorm() if model is not None else None
@@ -63,6 +64,7 @@ class ClassifierPredictor:
         from ..digests import sha256_file
         from .onnx_export import GRAPH_FILES, _complete, cache_dir, export_classifier_graph
 
+        precision = _no_int8(precision)
         if resolve_backend(backend, precision, trace) == "onnxruntime":
             try:
                 folder = cache_dir("classifier-file", sha256_file(path))
@@ -113,3 +115,9 @@ class ClassifierPredictor:
         bf16 = self.bf16_min_batch is not None and len(pts) >= self.bf16_min_batch
         with torch.inference_mode():
             return self._run(torch.as_tensor(pts), torch.as_tensor(g), bf16=bf16)[0].double().numpy()
+
+
+def _no_int8(precision: str) -> str:
+    """The classifier's precision for the detector's: it has no int8 graph (it is small), so
+    ``"int8"`` runs it in float32."""
+    return "fp32" if precision == "int8" else precision

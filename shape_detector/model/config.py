@@ -17,7 +17,7 @@ from typing import Any
 from ..classes import MEAN_SIZES, NUM_CLASSES
 
 #: the network's arithmetic choices (see :class:`~shape_detector.model.predictor.FrustumPredictor`)
-PRECISIONS = ("fp32", "bf16", "auto")
+PRECISIONS = ("fp32", "bf16", "auto", "int8")
 
 
 def _default_mean_sizes() -> list[list[float]]:

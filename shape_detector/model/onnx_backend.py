@@ -5,7 +5,9 @@ TensorRT / CUDA providers first where installed and the device is not ``"cpu"``)
 ``"torch"`` runs the PyTorch module (TorchScript graphs or eager), ``"auto"`` picks
 onnxruntime when it imports, else torch with one warning. ``"auto"`` also picks torch for
 what only torch does: ``precision="bf16"`` and the eager forward (``trace=False``, which
-module hooks and debuggers need). The environment variable ``SHAPE_DETECTOR_BACKEND``
+module hooks and debuggers need). ``precision="int8"`` runs only in onnxruntime
+(:mod:`.onnx_quantize`): ``"torch"`` refuses it, ``"auto"`` without onnxruntime warns and
+runs float32 in torch. The environment variable ``SHAPE_DETECTOR_BACKEND``
 (``onnxruntime`` / ``torch``) overrides ``"auto"`` (for A/B runs of whole programs).
 
 Nothing here imports torch.
@@ -50,20 +52,22 @@ def resolve_backend(backend: str = "auto", precision: str = "fp32", trace: bool 
         if env in ("onnxruntime", "torch"):
             backend = env
     if backend == "torch":
+        if precision == "int8":
+            raise ValueError("precision 'int8' runs in onnxruntime: use backend 'onnxruntime' or 'auto'")
         return "torch"
     if backend == "onnxruntime":
         if not ort_available():
             raise ImportError("backend='onnxruntime' needs the onnxruntime package (pip install onnxruntime)")
         return "onnxruntime"
-    if precision == "bf16" or not trace:
+    if precision == "bf16" or (not trace and precision != "int8"):
         return "torch"
     if ort_available():
         return "onnxruntime"
     with _warn_lock:
         if not _warned_missing:
             _warned_missing = True
-            warnings.warn("onnxruntime is not installed: running the networks in PyTorch (slower on most CPUs)",
-                          stacklevel=3)
+            warnings.warn("onnxruntime is not installed: running the networks in PyTorch (slower on most CPUs"
+                          + ("; precision int8 runs as fp32 there)" if precision == "int8" else ")"), stacklevel=3)
     return "torch"
 
 
@@ -101,15 +105,19 @@ class OrtFrustumForward:
     seg_cache, shapes)`` -> the dict of :meth:`FrustumPredictor.forward_arrays
     <shape_detector.model.predictor.FrustumPredictor.forward_arrays>` (numpy; ``seg_glob`` /
     ``seg_local`` included; ``shapes=False``: without the shape branch, primitives zeros).
-    ``folder`` holds ``frustum_seg.onnx`` / ``frustum_head.onnx`` / ``frustum_box.onnx``.
+    ``folder`` holds ``frustum_seg.onnx`` / ``frustum_head.onnx`` / ``frustum_box.onnx``
+    (``int8``: the ``.int8.onnx`` versions of the last two).
     Sessions are thread-safe: chunks of a batch may run on several Python threads (the GIL
     is released while a graph runs)."""
 
-    def __init__(self, folder: str | Path, threads: int = 1, device: str = "cpu") -> None:
+    def __init__(self, folder: str | Path, threads: int = 1, device: str = "cpu", int8: bool = False) -> None:
         folder = Path(folder)
-        self.seg = make_session(folder / GRAPH_FILES["frustum_seg"], threads, device)
-        self.head = make_session(folder / GRAPH_FILES["frustum_head"], threads, device)
-        self.box = make_session(folder / GRAPH_FILES["frustum_box"], threads, device)
+        files = dict(GRAPH_FILES)
+        if int8:  # the box and head graphs' int8 versions (built by .onnx_quantize.int8_graphs)
+            files.update({n: files[n].replace(".onnx", ".int8.onnx") for n in ("frustum_box", "frustum_head")})
+        self.seg = make_session(folder / files["frustum_seg"], threads, device)
+        self.head = make_session(folder / files["frustum_head"], threads, device)
+        self.box = make_session(folder / files["frustum_box"], threads, device)
 
     def __call__(
         self,

@@ -107,7 +107,8 @@ class FrustumPredictor:
     ``precision`` (torch): ``"fp32"`` (default), ``"bf16"`` (bfloat16 autocast: about 2x
     faster on CPUs with AMX / AVX512-BF16 for large batches, much slower on those without)
     or ``"auto"`` (bf16 for batches of at least :data:`AUTO_BF16_MIN_BATCH` frustums on a CPU
-    with AMX, else fp32); onnxruntime runs fp32. ``trace`` (torch, CPU): frozen TorchScript
+    with AMX, else fp32); onnxruntime runs fp32, or with ``"int8"`` the box and shape
+    PointNets' wide layers in int8 (:mod:`.onnx_quantize`; torch then runs fp32). ``trace`` (torch, CPU): frozen TorchScript
     graphs (:mod:`.traced`); False = eager (and ``backend="auto"`` then means torch).
     """
 
@@ -167,6 +168,8 @@ class FrustumPredictor:
     def _init_torch(self, device: Any) -> None:
         import torch
 
+        if self.precision == "int8":  # int8 graphs are onnxruntime's (resolve_backend warned)
+            self.precision = "fp32"
         from .traced import TracedForward
 
         if self.num_threads is not None:
@@ -192,7 +195,12 @@ class FrustumPredictor:
         self.device = "cpu" if str(device) == "cpu" else str(device)
         self.bf16_min_batch = None
         self.graph_folder = folder
-        self._ort = OrtFrustumForward(folder, int(self.num_threads or 1), self.device)
+        int8 = self.precision == "int8"
+        if int8:
+            from .onnx_quantize import int8_graphs
+
+            int8_graphs(folder)
+        self._ort = OrtFrustumForward(folder, int(self.num_threads or 1), self.device, int8=int8)
 
     def load_weights(self, path: str | Path) -> None:
         """Load another weights file (torch backend: in place; onnxruntime: its graphs)."""

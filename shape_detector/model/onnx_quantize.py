@@ -1,0 +1,105 @@
+"""int8 versions of the frustum network's box and head graphs (``precision="int8"``).
+
+ONNX Runtime's dynamic quantisation: the weights of the selected matrix products are stored
+as int8 (per output channel), their inputs quantised to uint8 per batch at run time. Only the
+wide per-point layers are quantised, and not the segmentation's: :func:`int8_nodes` takes the
+``MatMul`` nodes with a constant weight of at least :data:`MIN_CHANNELS` input channels and
+more than two outputs, outside the segmentation PointNet and its head. Those are most of the
+arithmetic (the T-Net, box, context, second-box and shape PointNets). The segmentation is left
+in float32 because a flipped mask point changes which points the later PointNets gather, and
+the box moves by centimetres; the later layers' int8 error moves it by a millimetre.
+
+Weights use 7 bits (``reduce_range``): on x86 CPUs without VNNI the uint8 x int8 products are
+summed in pairs in 16 bits, which 8-bit weights can overflow, so with 7 bits every x86 CPU gives
+the same result. The ``frustum_seg`` graph is shared with float32.
+
+Needs the ``onnx`` package (``onnxruntime.quantization`` imports it) to build; running the
+files needs only onnxruntime. Measured speed and accuracy: docs/model_card.md.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import warnings
+from pathlib import Path
+from typing import Any
+
+from .onnx_export import GRAPH_FILES, _write_meta, read_meta
+
+#: the graphs that have an int8 version
+INT8_GRAPHS = ("frustum_box", "frustum_head")
+#: matrix products with fewer input channels stay float32 (the first layers see raw xyz)
+MIN_CHANNELS = 64
+#: nodes whose names contain this belong to the segmentation and stay float32
+SEGMENTATION_TAG = "seg_"
+#: bump when the selection or the settings change (cached int8 graphs are rebuilt)
+INT8_VERSION = 1
+
+
+def int8_file(name: str) -> str:
+    """File name of graph ``name``'s int8 version (``frustum_head`` -> ``frustum_head.int8.onnx``)."""
+    return GRAPH_FILES[name].replace(".onnx", ".int8.onnx")
+
+
+def int8_nodes(model: Any) -> list[str]:
+    """Names of the ``MatMul`` nodes of an ``onnx.ModelProto`` that :mod:`this module
+    <.onnx_quantize>` quantises (see the module docstring)."""
+    weights = {t.name: tuple(t.dims) for t in model.graph.initializer}
+    out = []
+    for node in model.graph.node:
+        if node.op_type != "MatMul" or SEGMENTATION_TAG in node.name:
+            continue
+        dims = [weights[i] for i in node.input if i in weights]
+        if dims and len(dims[0]) == 2 and dims[0][0] >= MIN_CHANNELS and dims[0][1] > 2:
+            out.append(node.name)
+    return out
+
+
+def quantize_graph(src: str | Path, dst: str | Path) -> int:
+    """Write the int8 version of the ONNX graph ``src`` to ``dst``; returns how many matrix
+    products were quantised. ImportError without the ``onnx`` package."""
+    import onnx
+    from onnxruntime.quantization import QuantType, quantize_dynamic
+
+    nodes = int8_nodes(onnx.load(str(src), load_external_data=False))
+    dst = Path(dst)
+    tmp = dst.with_name(dst.name + f".{os.getpid()}.tmp")
+    if not nodes:  # a narrow network: nothing to quantise (an empty list would mean "all" to the quantiser)
+        shutil.copyfile(src, tmp)
+        os.replace(tmp, dst)
+        return 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        level = logging.getLogger().level
+        logging.getLogger().setLevel(logging.ERROR)  # the quantiser's "consider pre-processing" notice
+        try:
+            quantize_dynamic(str(src), str(tmp), weight_type=QuantType.QInt8, per_channel=True, reduce_range=True,
+                             nodes_to_quantize=nodes, op_types_to_quantize=["MatMul"])
+        finally:
+            logging.getLogger().setLevel(level)
+    os.replace(tmp, dst)
+    return len(nodes)
+
+
+def int8_graphs(folder: str | Path) -> dict[str, Path]:
+    """The int8 versions of :data:`INT8_GRAPHS` in an export ``folder`` (next to their float32
+    graphs), built first where ``graphs.json`` does not record this :data:`INT8_VERSION` of them."""
+    folder = Path(folder)
+    paths = {name: folder / int8_file(name) for name in INT8_GRAPHS}
+    known = (read_meta(folder) or {}).get("graphs", {})
+    built: dict[str, Any] = {}
+    for name, path in paths.items():
+        entry = known.get(name + "_int8") or {}
+        if path.is_file() and entry.get("int8_version") == INT8_VERSION:
+            continue
+        count = quantize_graph(folder / GRAPH_FILES[name], path)
+        src = known.get(name) or {}
+        built[name + "_int8"] = {"file": path.name, "from": GRAPH_FILES[name], "int8_version": INT8_VERSION,
+                                 "inputs": src.get("inputs"), "outputs": src.get("outputs"),
+                                 "quantized_matmuls": count, "weights": "int8 per output channel, 7 bits",
+                                 "activations": "uint8 per batch, dynamic"}
+    if built:
+        _write_meta(folder, {"graphs": built})
+    return paths
