@@ -273,7 +273,7 @@ def bench_node(
     proc = start_node(remaps, params, env=env, extra_pythonpath=extra_pythonpath)
     out = OutputCollector(proc, echo=echo)
     ctx = rclpy.context.Context()
-    rclpy.init(context=ctx)
+    rclpy.init(args=["node_bench"], context=ctx)  # not sys.argv: its -p NAME:=VALUE are the node's
     listener = MarkerListener(ctx)
     result: dict[str, Any] = {"bag": str(bag), "rate": rate, "loops": loops}
     try:

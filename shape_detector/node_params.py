@@ -149,6 +149,9 @@ def build_detector(p: dict[str, Any], external: bool, factory: Callable[..., Any
             det.warm_up()
         except Exception as exc:  # a failed warm-up must not stop the node; frames will tell
             warning(f"detector warm-up failed: {exc!r}")
+    pred = getattr(det, "predictor", None)
+    runtime = (f", backend={pred.backend}, precision={pred.precision}"
+               if hasattr(pred, "backend") and hasattr(pred, "precision") else "")
     info(f"detector {type(det).__name__} ready in {time.perf_counter() - t:.2f} s "
-         f"(weights={config.weights or 'default'}, device={config.device})")
+         f"(weights={config.weights or 'default'}, device={config.device}{runtime})")
     return det
