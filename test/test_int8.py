@@ -130,3 +130,22 @@ def test_detector_with_int8_finds_the_objects_float32_finds():
     near = [min(np.linalg.norm(o.center - p.center) for p in b) < 0.05 for o in a]
     assert np.mean(near) >= 0.8
     assert det.detect(frame.rgb, frame.depth, frame.K)  # built-in proposals: classifier in float32
+
+
+def test_int8_without_the_quantiser_runs_float32_graphs_with_a_warning(tmp_path, monkeypatch):
+    from shape_detector.model import onnx_quantize
+
+    from small_net import save_small_weights
+
+    monkeypatch.setenv("SHAPE_DETECTOR_CACHE", str(tmp_path / "cache"))
+    w = save_small_weights(tmp_path / "w.pt", num_points=64, num_object_points=32)
+
+    def missing(*_a, **_k):
+        raise ImportError("No module named 'onnx'")
+
+    monkeypatch.setattr(onnx_quantize, "quantize_graph", missing)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        p = FrustumPredictor(w, backend="onnxruntime", precision="int8")
+    assert p.backend == "onnxruntime" and p.precision == "fp32"
+    assert [str(c.message) for c in caught if "int8" in str(c.message)]

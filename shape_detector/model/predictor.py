@@ -199,7 +199,11 @@ class FrustumPredictor:
         if int8:
             from .onnx_quantize import int8_graphs
 
-            int8_graphs(folder)
+            try:
+                int8_graphs(folder)
+            except ImportError as e:  # the quantiser needs the onnx package; the float32 graphs do not
+                warnings.warn(f"precision int8 cannot build its graphs ({e}); running float32", stacklevel=3)
+                self.precision, int8 = "fp32", False
         self._ort = OrtFrustumForward(folder, int(self.num_threads or 1), self.device, int8=int8)
 
     def load_weights(self, path: str | Path) -> None:
