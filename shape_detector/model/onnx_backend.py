@@ -114,7 +114,9 @@ class OrtFrustumForward:
         folder = Path(folder)
         files = dict(GRAPH_FILES)
         if int8:  # the box and head graphs' int8 versions (built by .onnx_quantize.int8_graphs)
-            files.update({n: files[n].replace(".onnx", ".int8.onnx") for n in ("frustum_box", "frustum_head")})
+            from .onnx_quantize import INT8_GRAPHS, int8_file
+
+            files.update({n: int8_file(n) for n in INT8_GRAPHS})
         self.seg = make_session(folder / files["frustum_seg"], threads, device)
         self.head = make_session(folder / files["frustum_head"], threads, device)
         self.box = make_session(folder / files["frustum_box"], threads, device)

@@ -108,8 +108,9 @@ class FrustumPredictor:
     faster on CPUs with AMX / AVX512-BF16 for large batches, much slower on those without)
     or ``"auto"`` (bf16 for batches of at least :data:`AUTO_BF16_MIN_BATCH` frustums on a CPU
     with AMX, else fp32); onnxruntime runs fp32, or with ``"int8"`` the box and shape
-    PointNets' wide layers in int8 (:mod:`.onnx_quantize`; torch then runs fp32). ``trace`` (torch, CPU): frozen TorchScript
-    graphs (:mod:`.traced`); False = eager (and ``backend="auto"`` then means torch).
+    PointNets' wide layers in int8 (:mod:`.onnx_quantize`; torch then runs fp32).
+    ``trace`` (torch, CPU): frozen TorchScript graphs (:mod:`.traced`); False = eager (and
+    ``backend="auto"`` then means torch).
     """
 
     def __init__(
