@@ -53,9 +53,10 @@ class DetectorConfig:
                                "the second pass then runs on one proposal per object", node="dynamic")
     mirror_tta: str = setting("never", "also run each frustum mirrored and merge: given (external boxes only), "
                               "always or never", choices=("given", "always", "never"))
-    precision: str = setting("auto", "network arithmetic: auto (bfloat16 for 4+ frustums on CPUs with AMX "
-                             "under the torch backend, else fp32), fp32, bf16 (torch), or int8 (onnxruntime: "
-                             "the box and shape PointNets' wide layers in int8, about a quarter less network "
+    precision: str = setting("auto", "network arithmetic: auto (onnxruntime: int8 for the class-agnostic "
+                             "first pass, whose boxes are never published, fp32 for the rest; torch: bfloat16 "
+                             "for 4+ frustums on CPUs with AMX, else fp32), fp32, bf16 (torch), or int8 "
+                             "(onnxruntime: every pass's box and shape PointNets in int8, a quarter less network "
                              "time, accuracy in the model card)", choices=PRECISIONS)
     trace: bool = setting(True, "run the PyTorch network as frozen TorchScript graphs (releases the GIL)")
     num_threads: int = setting(1, "intra-op threads of the network; 0 keeps the runtime's default",

@@ -32,6 +32,23 @@ def predictors():
             FrustumPredictor(backend="onnxruntime", precision="int8"))
 
 
+def test_auto_runs_only_the_class_agnostic_first_pass_in_int8(predictors):
+    f, _ = predictors
+    a = FrustumPredictor(backend="onnxruntime", precision="auto")
+    assert a.int8_graphs == ("frustum_box",) and f.int8_graphs == ()
+    frs, cls = _real_frustums(2)
+    # class-given (the second pass, given boxes): the float32 head graph, as fp32
+    for p, r in zip(f.predict(frs, cls), a.predict(frs, cls)):
+        np.testing.assert_allclose(p.center, r.center, atol=1e-5)
+        np.testing.assert_allclose(p.size, r.size, atol=1e-5)
+        assert p.primitives and len(p.primitives) == len(r.primitives)
+    # class-agnostic without shapes (a first pass the second replaces): the int8 box graph
+    first_f, first_a = f.predict(frs, shapes=False), a.predict(frs, shapes=False)
+    dc = [np.linalg.norm(p.center - r.center) for p, r in zip(first_f, first_a)]
+    assert np.median(dc) < MEDIAN_CENTRE_M
+    assert np.mean([p.class_name == r.class_name for p, r in zip(first_f, first_a)]) >= 0.9
+
+
 def _real_frustums(n_frames: int = 4) -> tuple[list, list[int]]:
     from shape_detector.synth.generate import generate_frame
 

@@ -106,17 +106,17 @@ class OrtFrustumForward:
     <shape_detector.model.predictor.FrustumPredictor.forward_arrays>` (numpy; ``seg_glob`` /
     ``seg_local`` included; ``shapes=False``: without the shape branch, primitives zeros).
     ``folder`` holds ``frustum_seg.onnx`` / ``frustum_head.onnx`` / ``frustum_box.onnx``
-    (``int8``: the ``.int8.onnx`` versions of the last two).
+    (``int8``: the names of those to take in their ``.int8.onnx`` versions instead).
     Sessions are thread-safe: chunks of a batch may run on several Python threads (the GIL
     is released while a graph runs)."""
 
-    def __init__(self, folder: str | Path, threads: int = 1, device: str = "cpu", int8: bool = False) -> None:
+    def __init__(self, folder: str | Path, threads: int = 1, device: str = "cpu", int8: tuple[str, ...] = ()) -> None:
         folder = Path(folder)
         files = dict(GRAPH_FILES)
-        if int8:  # the box and head graphs' int8 versions (built by .onnx_quantize.int8_graphs)
-            from .onnx_quantize import INT8_GRAPHS, int8_file
+        if int8:  # these graphs' int8 versions (built by .onnx_quantize.int8_graphs)
+            from .onnx_quantize import int8_file
 
-            files.update({n: int8_file(n) for n in INT8_GRAPHS})
+            files.update({n: int8_file(n) for n in int8})
         self.seg = make_session(folder / files["frustum_seg"], threads, device)
         self.head = make_session(folder / files["frustum_head"], threads, device)
         self.box = make_session(folder / files["frustum_box"], threads, device)

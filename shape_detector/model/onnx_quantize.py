@@ -1,4 +1,9 @@
-"""int8 versions of the frustum network's box and head graphs (``precision="int8"``).
+"""int8 versions of the frustum network's box and head graphs.
+
+Which graphs run in int8 follows the ``precision`` setting (:func:`quantized_graphs`):
+``"int8"``: both; ``"auto"``: only ``frustum_box``, the class-agnostic first pass whose
+boxes rank and deduplicate built-in proposals but are never published (the class-given
+second pass, in float32, replaces every box that is); ``"fp32"``: none.
 
 ONNX Runtime's dynamic quantisation: the weights of the selected matrix products are stored
 as int8 (per output channel), their inputs quantised to uint8 per batch at run time. Only the
@@ -36,6 +41,11 @@ MIN_CHANNELS = 64
 SEGMENTATION_TAG = "seg_"
 #: bump when the selection or the settings change (cached int8 graphs are rebuilt)
 INT8_VERSION = 1
+
+
+def quantized_graphs(precision: str) -> tuple[str, ...]:
+    """The graphs that run in int8 under ``precision`` (module docstring)."""
+    return {"int8": INT8_GRAPHS, "auto": ("frustum_box",)}.get(precision, ())
 
 
 def int8_file(name: str) -> str:
@@ -83,11 +93,11 @@ def quantize_graph(src: str | Path, dst: str | Path) -> int:
     return len(nodes)
 
 
-def int8_graphs(folder: str | Path) -> dict[str, Path]:
-    """The int8 versions of :data:`INT8_GRAPHS` in an export ``folder`` (next to their float32
+def int8_graphs(folder: str | Path, names: tuple[str, ...] = INT8_GRAPHS) -> dict[str, Path]:
+    """The int8 versions of the graphs ``names`` in an export ``folder`` (next to their float32
     graphs), built first where ``graphs.json`` does not record this :data:`INT8_VERSION` of them."""
     folder = Path(folder)
-    paths = {name: folder / int8_file(name) for name in INT8_GRAPHS}
+    paths = {name: folder / int8_file(name) for name in names}
     known = (read_meta(folder) or {}).get("graphs", {})
     built: dict[str, Any] = {}
     for name, path in paths.items():

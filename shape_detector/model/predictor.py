@@ -107,8 +107,9 @@ class FrustumPredictor:
     ``precision`` (torch): ``"fp32"`` (default), ``"bf16"`` (bfloat16 autocast: about 2x
     faster on CPUs with AMX / AVX512-BF16 for large batches, much slower on those without)
     or ``"auto"`` (bf16 for batches of at least :data:`AUTO_BF16_MIN_BATCH` frustums on a CPU
-    with AMX, else fp32); onnxruntime runs fp32, or with ``"int8"`` the box and shape
-    PointNets' wide layers in int8 (:mod:`.onnx_quantize`; torch then runs fp32).
+    with AMX, else fp32); onnxruntime runs fp32, with ``"int8"`` the box and shape
+    PointNets' wide layers in int8, with ``"auto"`` those of the class-agnostic first pass
+    only (its boxes are never published; :mod:`.onnx_quantize`). Torch runs ``"int8"`` as fp32.
     ``trace`` (torch, CPU): frozen TorchScript graphs (:mod:`.traced`); False = eager (and
     ``backend="auto"`` then means torch).
     """
@@ -135,6 +136,8 @@ class FrustumPredictor:
         self._pool: ThreadPoolExecutor | None = None
         self._model: Any = None  # the torch network, loaded lazily under onnxruntime
         self._ort: OrtFrustumForward | None = None
+        #: the onnxruntime graphs run in int8 (:func:`.onnx_quantize.quantized_graphs`)
+        self.int8_graphs: tuple[str, ...] = ()
         self.meta: dict = {}
         if weights is None:
             p = default_weights_path()
@@ -196,15 +199,17 @@ class FrustumPredictor:
         self.device = "cpu" if str(device) == "cpu" else str(device)
         self.bf16_min_batch = None
         self.graph_folder = folder
-        int8 = self.precision == "int8"
-        if int8:
-            from .onnx_quantize import int8_graphs
+        from .onnx_quantize import int8_graphs, quantized_graphs
 
+        int8 = quantized_graphs(self.precision)
+        if int8:
             try:
-                int8_graphs(folder)
+                int8_graphs(folder, int8)
             except ImportError as e:  # the quantiser needs the onnx package; the float32 graphs do not
-                warnings.warn(f"precision int8 cannot build its graphs ({e}); running float32", stacklevel=3)
-                self.precision, int8 = "fp32", False
+                warnings.warn(f"precision {self.precision} cannot build its int8 graphs ({e}); running float32",
+                              stacklevel=3)
+                self.precision, int8 = "fp32", ()
+        self.int8_graphs = int8
         self._ort = OrtFrustumForward(folder, int(self.num_threads or 1), self.device, int8=int8)
 
     def load_weights(self, path: str | Path) -> None:
