@@ -12,7 +12,7 @@ wide per-point layers are quantised, and not the segmentation's: :func:`int8_nod
 more than two outputs, outside the segmentation PointNet and its head. Those are most of the
 arithmetic (the T-Net, box, context, second-box and shape PointNets). The segmentation is left
 in float32 because a flipped mask point changes which points the later PointNets gather, and
-the box moves by centimetres; the later layers' int8 error moves it by a millimetre.
+the box moves by centimetres; the later layers' int8 error moves it by millimetres.
 
 Weights use 7 bits (``reduce_range``): on x86 CPUs without VNNI the uint8 x int8 products are
 summed in pairs in 16 bits, which 8-bit weights can overflow, so with 7 bits every x86 CPU gives

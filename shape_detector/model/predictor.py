@@ -32,6 +32,7 @@ from ..types import Cuboid
 from .config import PRECISIONS, ModelConfig
 from .batching import MIRROR_CONFLICT, concat as _concat, merge_mirrored, repeat_first as _repeat_first, stack as _stack
 from .onnx_backend import resolve_backend
+from .onnx_quantize import int8_graphs, quantized_graphs
 from .prediction import FrustumPrediction, refined_score
 
 if TYPE_CHECKING:
@@ -136,8 +137,6 @@ class FrustumPredictor:
         self._pool: ThreadPoolExecutor | None = None
         self._model: Any = None  # the torch network, loaded lazily under onnxruntime
         self._ort: OrtFrustumForward | None = None
-        #: the onnxruntime graphs run in int8 (:func:`.onnx_quantize.quantized_graphs`)
-        self.int8_graphs: tuple[str, ...] = ()
         self.meta: dict = {}
         if weights is None:
             p = default_weights_path()
@@ -199,8 +198,6 @@ class FrustumPredictor:
         self.device = "cpu" if str(device) == "cpu" else str(device)
         self.bf16_min_batch = None
         self.graph_folder = folder
-        from .onnx_quantize import int8_graphs, quantized_graphs
-
         int8 = quantized_graphs(self.precision)
         if int8:
             try:
@@ -209,8 +206,12 @@ class FrustumPredictor:
                 warnings.warn(f"precision {self.precision} cannot build its int8 graphs ({e}); running float32",
                               stacklevel=3)
                 self.precision, int8 = "fp32", ()
-        self.int8_graphs = int8
         self._ort = OrtFrustumForward(folder, int(self.num_threads or 1), self.device, int8=int8)
+
+    @property
+    def int8_graphs(self) -> tuple[str, ...]:
+        """The onnxruntime graphs this predictor runs in int8 (:func:`.onnx_quantize.quantized_graphs`)."""
+        return quantized_graphs(self.precision) if self.backend == "onnxruntime" else ()
 
     def load_weights(self, path: str | Path) -> None:
         """Load another weights file (torch backend: in place; onnxruntime: its graphs)."""
