@@ -3,7 +3,7 @@
 Targets: ``synth`` (scene generator frames/s), ``network`` (batched forward ms/frame for 1,
 5, 10 objects), ``proposals`` (gravity + geometric proposals ms per VGA frame),
 ``pipeline`` (whole ``ShapeDetector.detect`` on generated VGA frames, serial and as the
-node's two-thread pipeline), ``node`` (ROS node
+node's two-thread pipeline and its detector processes), ``node`` (ROS node
 frames/s and stamp-to-publish latency on the sample bag), ``all``; and ``soak`` (the node
 under ``--rate-factor`` times overload for ``--minutes``: RSS, counts, output order; not
 part of ``all``).
@@ -59,6 +59,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--against", default=None, choices=PRECISIONS,
                    help="pipeline: also time detect() in this precision, alternating frames with --precision "
                         "in one process (a paired comparison that the VM's drift does not bias)")
+    p.add_argument("--processes", type=int, default=2,
+                   help="pipeline: also time the node's pipeline with this many detector processes (0: not)")
     p.add_argument("--bag", default=str(Path(__file__).resolve().parents[1] / "bags" / "sample"))
     p.add_argument("--json", default=None, help="also write the results here")
 
@@ -108,14 +110,16 @@ def bench_pipeline(
     data: str | None = None,
     peer: bool = True,
     against: str | None = None,
+    processes: int = 2,
 ) -> dict:
     """Median / p95 ms per VGA frame of serial ``ShapeDetector.detect`` (the realtime preset;
     arguments that are not None change its settings) with GT boxes (``gt_boxes``), with 10
     given boxes (``given10``, :func:`given_boxes`) and with built-in proposals
     (``builtin``), the F-PointNet v1 forward of 10 x 1024 points in PyTorch beside it
     (``peer``: :mod:`.model.fpointnet_v1`), then the built-in throughput with the node's
-    two-thread pipeline. ``against``: another precision, timed alternately with this one on the
-    same frames (:func:`_bench_paired`)."""
+    two-thread pipeline, and in ``processes`` worker processes (0: not timed). ``against``:
+    another precision, timed alternately with this one on the same frames
+    (:func:`_bench_paired`)."""
     from .detector import ShapeDetector
     from .detector_config import resolved_workers
 
@@ -166,6 +170,16 @@ def bench_pipeline(
         f"(pipeline_split {pipeline_split})",
         flush=True,
     )
+    if processes > 0:
+        from .process_detector import ProcessDetector
+
+        with ProcessDetector(det.config, processes) as pool:
+            pool.warm_up()
+            res = _bench_pipelined(pool, scenes)
+        out["builtin_processes"] = res
+        print(f"pipeline[builtin, node's pipeline, detector_processes={processes}]: {res['ms_per_frame']:.1f} ms/frame "
+              f"throughput ({res['fps']:.1f} fps); latency p50 {res['latency_ms_p50']:.1f} ms, "
+              f"p95 {res['latency_ms_p95']:.1f} ms", flush=True)
     return out
 
 
@@ -252,6 +266,7 @@ def _bench_pipelined(det, scenes: list, split: str = "auto") -> dict:
                 t0 = time.perf_counter()
                 prepared = det.prepare(f.rgb, f.depth, f.K)
                 share = first_pass_share(det.last_timing) if split == "auto" else float(split == "network")
+                share *= hasattr(det, "first_pass")  # worker processes run whole frames
                 early.append(share)  # as the node's pipeline_split
                 if share > 0.0:
                     det.first_pass(prepared, share)
@@ -313,7 +328,7 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
             precision=args.precision, max_objects=args.max_objects, classifier=not args.no_classifier,
             refine=not args.no_refine, pipeline_split=args.pipeline_split, trace=not args.no_trace,
             free_space=not args.no_free_space, backend=args.backend, score_threshold=args.score_threshold,
-            data=args.data, peer=not args.no_peer, against=args.against,
+            data=args.data, peer=not args.no_peer, against=args.against, processes=args.processes,
         )
     if target == "node":
         from .node_bench import bench_node

@@ -223,15 +223,21 @@ def _receive_stats(rec: list, sent: int, wall: float) -> dict[str, Any]:
     )
 
 
-def rss_mb(pid: int) -> float:
-    """Resident set size of process ``pid`` in MiB (Linux /proc); NaN when unreadable."""
+def rss_mb(pid: int, children: bool = False) -> float:
+    """Resident set size of process ``pid`` in MiB (Linux /proc), with ``children`` plus that of
+    its descendants (the node's detector processes); NaN when unreadable."""
     try:
+        total = 0.0
         for line in Path(f"/proc/{pid}/status").read_text().splitlines():
             if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return float("nan")
+                total = int(line.split()[1]) / 1024.0
+        if children:
+            for task in Path(f"/proc/{pid}/task").iterdir():
+                for child in (task / "children").read_text().split():
+                    total += rss_mb(int(child), True)
+        return total
+    except (OSError, ValueError):
+        return float("nan")
 
 
 def bench_node(
@@ -291,7 +297,7 @@ def bench_node(
         result.update(_receive_stats(list(listener.received), sent, wall))
         if listener.received:  # from spawning the node to its first published frame (player included)
             result["first_frame_s"] = (listener.received[0][0] - spawned_ns) / 1e9
-        result["node_rss_mb"] = rss_mb(proc.pid)
+        result["node_rss_mb"] = rss_mb(proc.pid, children=True)
     finally:
         # the child first: whatever happens to this process' ROS teardown, it is reaped
         rc = stop_node(proc)
@@ -304,7 +310,7 @@ def bench_node(
             f"(input {result['input_fps']:.2f}/s, rate {rate}), latency stamp->markers p50 "
             f"{result['latency_p50_ms']:.1f} ms, p95 {result['latency_p95_ms']:.1f} ms, "
             f"dropped {result['frames_dropped']}; ready {result['ready_s']:.2f} s and first frame "
-            f"{result.get('first_frame_s', float('nan')):.2f} s after start, node RSS {result['node_rss_mb']:.0f} MiB",
+            f"{result.get('first_frame_s', float('nan')):.2f} s after start, node RSS {result['node_rss_mb']:.0f} MiB (its detector processes included)",
             flush=True,
         )
     return result

@@ -20,7 +20,7 @@ import numpy as np
 from .imu_gravity import ImuGravityFilter
 from .node_params import DETECTOR_ATTRS, PARAMETERS, REBUILD, apply_to_detector, build_detector, validate
 from .node_stats import NodeStats, WarningLimiter, problem_key, stats_line
-from .scheduler import FrameScheduler, FrameSet
+from .scheduler import FrameScheduler, FrameSet, close_detector
 from .sync import ApproximateTimeSynchronizer, header_stamp_ns
 
 
@@ -238,3 +238,4 @@ class NodeCore:
         """Stop the worker threads (idempotent, bounded in time)."""
         if self._scheduler is not None and not self._scheduler.stop():
             print("[shape_detector] a worker thread is still busy at shutdown; leaving it (daemon)", file=sys.stderr)
+        close_detector(getattr(self, "detector", None))

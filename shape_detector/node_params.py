@@ -22,6 +22,9 @@ class NodeConfig:
                                   "thread), network (first thread) or auto (split over both, the share of the "
                                   "frame's frustums that balances the threads)",
                                   choices=("auto", "prepare", "network"))
+    detector_processes: int = setting(0, "run the detector in this many worker processes (frames in flight run in "
+                                      "parallel, outside this process's interpreter lock; about 150 MiB each); "
+                                      "0 = in the node's own threads", range=(0, 16))
     sync_slop: float = setting(0.02, "approximate time synchroniser slop between image and depth stamps, s",
                                range=(0.0, 10.0), node="dynamic")
     sync_queue_size: int = setting(10, "synchroniser queue size per input topic", range=(1, 1000), node="dynamic")
@@ -129,21 +132,29 @@ def apply_to_detector(det: Any, name: str, value: Any) -> bool:
 def build_detector(p: dict[str, Any], external: bool, factory: Callable[..., Any] | None,
                    info: Callable[[str], Any], warning: Callable[[str], Any]) -> Any:
     """The detector the parameter values ``p`` ask for (``factory``, else the
-    ``detector_factory`` parameter, else ShapeDetector), warmed up; ``info``/``warning``
-    log a line."""
+    ``detector_factory`` parameter, else ShapeDetector; in ``detector_processes`` worker
+    processes unless ``factory`` is given), warmed up; ``info``/``warning`` log a line."""
     from .detector import ShapeDetector
     from .bags.detector_factory import factory_kwargs, load_factory
 
     config = detector_config(p, external)
-    if factory is None and p["detector_factory"]:
-        factory = load_factory(p["detector_factory"])
+    processes = int(p.get("detector_processes", 0)) if factory is None else 0
     t = time.perf_counter()
-    if factory is None:
-        det = ShapeDetector(config)
-    else:  # custom factories take ShapeDetector's keyword arguments; dynamic settings follow as attributes
-        det = factory(**factory_kwargs(config))
-        for name in DETECTOR_ATTRS:
-            apply_to_detector(det, name, p[name])
+    if processes > 0:  # the workers build it from the factory's name: a callable cannot travel
+        from .process_detector import ProcessDetector
+
+        det: Any = ProcessDetector(config, processes, p["detector_factory"])
+        name = f"{p['detector_factory'] or 'ShapeDetector'} in {processes} worker process(es)"
+    else:
+        if factory is None and p["detector_factory"]:
+            factory = load_factory(p["detector_factory"])
+        if factory is None:
+            det = ShapeDetector(config)
+        else:  # custom factories take ShapeDetector's keyword arguments; dynamic settings follow as attributes
+            det = factory(**factory_kwargs(config))
+            for attr in DETECTOR_ATTRS:
+                apply_to_detector(det, attr, p[attr])
+        name = type(det).__name__
     if hasattr(det, "warm_up"):  # first-call costs now, not on the first camera frame
         try:
             det.warm_up()
@@ -152,6 +163,6 @@ def build_detector(p: dict[str, Any], external: bool, factory: Callable[..., Any
     pred = getattr(det, "predictor", None)
     runtime = (f", backend={pred.backend}, precision={pred.precision}"
                if hasattr(pred, "backend") and hasattr(pred, "precision") else "")
-    info(f"detector {type(det).__name__} ready in {time.perf_counter() - t:.2f} s "
+    info(f"detector {name} ready in {time.perf_counter() - t:.2f} s "
          f"(weights={config.weights or 'default'}, device={config.device}{runtime})")
     return det

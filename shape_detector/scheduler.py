@@ -59,6 +59,16 @@ class Job:
     detect_ms: float | None = None  # detector time so far; None: the detector did not succeed
 
 
+def close_detector(det: Any) -> None:
+    """Release a detector's resources (worker processes) if it has any to release."""
+    close = getattr(det, "close", None)
+    if callable(close):
+        try:
+            close()
+        except Exception as e:  # noqa: BLE001 - shutting down must not fail on it
+            print(f"[shape_detector] closing the detector: {type(e).__name__}: {e}", file=sys.stderr)
+
+
 class FrameScheduler:
     """The worker thread(s) of the node; see the module docstring."""
 
@@ -130,10 +140,12 @@ class FrameScheduler:
             return
         self.rebuild = False
         try:
-            self.host.detector = self.host.build_detector()
+            old, self.host.detector = self.host.detector, self.host.build_detector()
         except Exception as e:  # noqa: BLE001
             self.host.warn("rebuild", f"cannot rebuild the detector, keeping the old one: {type(e).__name__}: {e}",
                            level="error", period=0.0)
+        else:
+            close_detector(old)
 
     def _frame(self, fs: FrameSet) -> Any:
         """The checked frame (PreparedFrame) or None when it is skipped (counted, warned)."""

@@ -360,3 +360,31 @@ def test_classifier_and_second_pass_parameters_reach_the_detector(ros_context):
             assert node.detector.free_space is False
         finally:
             node.destroy_node()
+
+
+def test_detector_in_worker_processes_publishes_every_frame_in_order(ros_context, monkeypatch):
+    from shape_detector.process_detector import ProcessDetector
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parent))  # the workers import the factory by name
+    params = {"detector_processes": 2, "detector_factory": "test_process_detector:EchoDetector"}
+    h = Harness(ros_context, "sd_procs", None, params=params)
+    try:
+        assert isinstance(h.node.detector, ProcessDetector) and len(h.node.detector.worker_pids) == 2
+        pids = list(h.node.detector.worker_pids)
+        stamps = []
+        for k in range(6):
+            stamps.append(time.time_ns())
+            h.frame(stamps[-1])
+            assert len(h.wait_markers(k + 1)) == k + 1
+        assert [stamp_of(m) for m in h.markers] == stamps
+        assert all(len(m.markers) == 4 for m in h.markers)  # DELETEALL + the chair's box, wireframe, label
+        h.node.set_parameters([Parameter("score_threshold", value=0.6)])
+        h.frame(time.time_ns())
+        assert len(h.wait_markers(7)) == 7 and h.node.get_stats().get("detector_errors", 0) == 0
+    finally:
+        h.close()
+    deadline = time.monotonic() + 5
+    while time.monotonic() < deadline and any(Path(f"/proc/{p}").exists() for p in pids):
+        time.sleep(0.05)
+    assert not any(Path(f"/proc/{p}").exists() and "zombie" not in Path(f"/proc/{p}/status").read_text().lower()
+                   for p in pids)
