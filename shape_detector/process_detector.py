@@ -9,15 +9,19 @@ to a free worker and returns at once, :meth:`~ProcessDetector.finish` waits for 
 With the node's ``pipeline`` the next frame is handed over while the current one finishes,
 so two workers are busy and output stays in input order.
 
-Frames travel to the workers through shared memory (one segment per frame, removed once
-its objects are back: a 2 MB VGA colour + depth pair sent down the executor's pipe took longer
-than the copy); the objects come back pickled. A worker that dies is replaced and the frames it held fail with an error.
+Frames travel to the workers through shared memory (one segment per frame, removed once its
+objects are back): a 2 MB VGA colour + depth pair sent down the executor's pipe costs several
+milliseconds, the copy a fraction of one. The objects come back pickled. A worker that dies is
+replaced and the frames it held fail with an error; workers ignore Ctrl-C (the parent stops
+them) and exit when the parent is killed outright.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import signal
+import threading
 import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -38,9 +42,13 @@ _DETECTOR: Any = None
 _APPLIED: dict[str, Any] = {}
 
 
-def _start(config: DetectorConfig, factory: str) -> None:
-    """Worker initialiser: build and warm up this process's detector."""
+def _start(config: DetectorConfig, factory: str, parent: int) -> None:
+    """Worker initialiser: build and warm up this process's detector. Ctrl-C reaches the
+    whole terminal's process group: the parent stops the workers, so they ignore it; and a
+    worker whose parent ``parent`` is gone (killed outright) exits."""
     global _DETECTOR
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_exit_with_parent, args=(parent,), name="parent_watch", daemon=True).start()
     if factory:  # as the node builds a custom detector: factory arguments, then dynamic settings
         from .bags.detector_factory import factory_kwargs, load_factory
         from .node_params import DETECTOR_ATTRS, apply_to_detector
@@ -54,6 +62,12 @@ def _start(config: DetectorConfig, factory: str) -> None:
         _DETECTOR = ShapeDetector(config)
     if hasattr(_DETECTOR, "warm_up"):
         _DETECTOR.warm_up()
+
+
+def _exit_with_parent(parent: int, period: float = 0.5) -> None:
+    while os.getppid() == parent:
+        time.sleep(period)
+    os._exit(0)  # nothing to flush: the detector holds no state worth keeping
 
 
 def _apply(changes: tuple[tuple[str, Any], ...]) -> None:
@@ -145,7 +159,7 @@ class ProcessDetector:
 
     def _new_pool(self) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(self.processes, mp_context=get_context("spawn"), initializer=_start,
-                                   initargs=(self.config, self.factory))
+                                   initargs=(self.config, self.factory, os.getpid()))
 
     def warm_up(self) -> None:
         """Start every worker (each builds and warms up its detector) and wait for them."""

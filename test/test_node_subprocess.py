@@ -4,6 +4,7 @@ into it, one MarkerArray per synchronised frame with the right stamps and frame_
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import time
@@ -167,3 +168,37 @@ def test_4000x3000_best_effort_frame_reaches_the_node_and_sigterm_stops_it(ros_c
     # the colour image (36 MB) is over the default warn_image_bytes (32 MiB), the depth (24 MB) not
     assert log.count("warn_image_bytes") == 1 and "/big/image: 34.3 MiB" in log, log
     assert rc == 0 and "Traceback" not in log, log
+
+
+def test_node_with_detector_processes_stops_on_ctrl_c_without_leftovers():
+    """Ctrl-C reaches the node's whole process group, its detector processes included: the
+    node stops them itself and exits cleanly, and none is left behind."""
+    proc = start_node({}, {"detector_factory": "test_node_subprocess:FakeDetector", "detector_processes": 2},
+                      extra_pythonpath=[str(TEST_DIR)], node_name="sd_procs")
+    out = OutputCollector(proc)
+    try:
+        assert out.wait_for("ready:", 120), out.text
+        children = [int(c) for t in Path(f"/proc/{proc.pid}/task").iterdir()
+                    for c in (t / "children").read_text().split()]
+        os.killpg(proc.pid, signal.SIGINT)  # as a terminal's Ctrl-C
+        rc = proc.wait(timeout=30)
+        # the workers have been joined; the resource tracker follows its parent within moments
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and [c for c in children if _alive(c)]:
+            time.sleep(0.1)
+        left = [(c, Path(f"/proc/{c}/cmdline").read_text()) for c in children if _alive(c)]
+    finally:
+        stop_node(proc)
+    log = out.text
+    assert rc == 0, log
+    assert "2 worker process(es)" in log
+    assert len(children) >= 2, log  # the workers (and the shared-memory resource tracker)
+    assert not left
+    assert "Traceback" not in log and "KeyboardInterrupt" not in log
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return "zombie" not in Path(f"/proc/{pid}/status").read_text().lower()
+    except OSError:
+        return False

@@ -126,3 +126,39 @@ def test_the_shipped_detector_gives_the_same_objects_in_a_worker(tmp_path):
     for a, b in zip(remote, local):
         assert a.center == pytest.approx(b.center, abs=1e-3)
         assert a.size == pytest.approx(b.size, abs=1e-3)
+
+
+def test_workers_ignore_ctrl_c_and_exit_with_a_killed_parent(tmp_path):
+    import subprocess
+
+    script = tmp_path / "parent.py"
+    script.write_text(
+        "import sys, time\n"
+        f"sys.path.insert(0, {str(TEST_DIR)!r})\n"
+        "from shape_detector.detector_config import preset\n"
+        "from shape_detector.process_detector import ProcessDetector\n"
+        "if __name__ == '__main__':\n"
+        f"    det = ProcessDetector(preset('realtime'), 2, {FAKE!r})\n"
+        "    det.warm_up()\n"
+        "    print(*det.worker_pids, flush=True)\n"
+        "    time.sleep(60)\n")
+    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+    try:
+        pids = [int(p) for p in proc.stdout.readline().split()]
+        assert len(pids) == 2
+        for p in pids:
+            os.kill(p, signal.SIGINT)  # as a terminal's Ctrl-C reaches the whole group
+        time.sleep(0.5)
+        assert all(Path(f"/proc/{p}").exists() for p in pids)
+        proc.kill()  # the parent dies without cleaning up
+        proc.wait(10)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and any(Path(f"/proc/{p}").exists() for p in pids):
+            time.sleep(0.1)
+        assert not any(Path(f"/proc/{p}").exists() for p in pids)
+        assert "Traceback" not in proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)

@@ -43,6 +43,7 @@ change through :meth:`Object3D.set_extent`, so primitives stretch with them.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -108,13 +109,22 @@ def _layer_samples(lo: np.ndarray, hi: np.ndarray, axis: int, sign: float, depth
     mid-depths ``depth_in`` (L,) inside its face on ``axis`` / ``sign``, each a ``grid``
     x ``grid`` lattice over the face."""
     o1, o2 = [a for a in range(3) if a != axis]
-    t = (np.arange(grid) + 0.5) / grid
-    g1, g2 = np.meshgrid(lo[o1] + t * (hi[o1] - lo[o1]), lo[o2] + t * (hi[o2] - lo[o2]), indexing="ij")
-    pts = np.zeros((len(depth_in), grid * grid, 3))
-    pts[:, :, o1] = g1.reshape(-1)
-    pts[:, :, o2] = g2.reshape(-1)
+    t1, t2 = _unit_lattice(grid)
+    pts = np.empty((len(depth_in), grid * grid, 3))
+    pts[:, :, o1] = lo[o1] + t1 * (hi[o1] - lo[o1])
+    pts[:, :, o2] = lo[o2] + t2 * (hi[o2] - lo[o2])
     pts[:, :, axis] = (hi[axis] - depth_in if sign > 0 else lo[axis] + depth_in)[:, None]
     return pts
+
+
+@lru_cache(maxsize=8)
+def _unit_lattice(grid: int) -> tuple[np.ndarray, np.ndarray]:
+    """The first and second coordinates (grid*grid,) of a ``grid`` x ``grid`` lattice of cell
+    centres in [0, 1]^2, the second varying fastest (read-only)."""
+    t = (np.arange(grid) + 0.5) / grid
+    a, b = np.repeat(t, grid), np.tile(t, grid)
+    a.flags.writeable = b.flags.writeable = False
+    return a, b
 
 
 def _seen_through(cam: np.ndarray, depth: np.ndarray, K: np.ndarray, p: CarveParams) -> tuple[np.ndarray, np.ndarray]:
