@@ -12,8 +12,8 @@ so two workers are busy and output stays in input order.
 Frames travel to the workers through shared memory (one segment per frame, removed once its
 objects are back): a 2 MB VGA colour + depth pair sent down the executor's pipe costs several
 milliseconds, the copy a fraction of one. The objects come back pickled. A worker that dies is
-replaced and the frames it held fail with an error; workers ignore Ctrl-C (the parent stops
-them) and exit when the parent is killed outright.
+replaced and the frames it held fail with an error; workers ignore Ctrl-C and SIGTERM (the
+parent stops them) and exit when the parent is killed outright.
 """
 
 from __future__ import annotations
@@ -43,11 +43,13 @@ _APPLIED: dict[str, Any] = {}
 
 
 def _start(config: DetectorConfig, factory: str, parent: int) -> None:
-    """Worker initialiser: build and warm up this process's detector. Ctrl-C reaches the
-    whole terminal's process group: the parent stops the workers, so they ignore it; and a
-    worker whose parent ``parent`` is gone (killed outright) exits."""
+    """Worker initialiser: build and warm up this process's detector. Ctrl-C (and a
+    service manager's SIGTERM) reaches the whole process group: the parent finishes the frames
+    in flight and stops the workers, so they ignore both; a worker whose parent ``parent`` is
+    gone (killed outright) exits."""
     global _DETECTOR
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     threading.Thread(target=_exit_with_parent, args=(parent,), name="parent_watch", daemon=True).start()
     if factory:  # as the node builds a custom detector: factory arguments, then dynamic settings
         from .bags.detector_factory import factory_kwargs, load_factory
@@ -190,6 +192,9 @@ class ProcessDetector:
         job.add_done_callback(lambda _: _release(shm))
         return job
 
+    #: the offline replay's name for :meth:`prepare` (frames handed over, waited for in order)
+    submit = prepare
+
     def finish(self, job: Future) -> list:
         """The objects of a frame handed over by :meth:`prepare` (camera optical frame)."""
         try:
@@ -212,14 +217,14 @@ class ProcessDetector:
 
     def close(self, timeout: float = 5.0) -> None:
         """Stop the workers: frames not started are cancelled, a worker still busy after
-        ``timeout`` s is terminated (idempotent)."""
+        ``timeout`` s is killed (idempotent)."""
         processes = list((getattr(self._pool, "_processes", None) or {}).values())  # no public list; None once shut down
         self._pool.shutdown(wait=False, cancel_futures=True)
         deadline = time.monotonic() + timeout
         for proc in processes:
             proc.join(max(0.0, deadline - time.monotonic()))
             if proc.is_alive():
-                proc.terminate()
+                proc.kill()  # workers ignore SIGTERM
 
     def __enter__(self) -> ProcessDetector:
         return self

@@ -91,8 +91,6 @@ def run_offline(args: argparse.Namespace, make_detector: Any, replay_bag: Any) -
 
 def _run(args: argparse.Namespace, make_detector: Any, replay_bag: Any) -> int:
     from ..config_cli import config_from_args
-    from ..replay import scene_options
-    from .source import BagReadError
 
     if (rc := _check_output_early(args)) is not None:
         return rc
@@ -107,24 +105,53 @@ def _run(args: argparse.Namespace, make_detector: Any, replay_bag: Any) -> int:
         return EXIT_USAGE
     with StopSignals() as stop:
         try:
-            detector = make_detector(config, args.detector)
+            detector = _detector(args, config, make_detector)
         except Exception as e:  # noqa: BLE001
             _err(f"cannot create the detector: {type(e).__name__}: {e}")
             return EXIT_ERROR
-        if stop.name:
-            _err(f"interrupted by {stop.name} before any frame was read; nothing written")
-            return EXIT_SIGTERM if stop.name == "SIGTERM" else EXIT_SIGINT
-        topics = {k: getattr(args, k) for k in ("image", "depth", "camera_info", "imu", "detections2d")}
         try:
-            summary = replay_bag(
-                args.bag, args.out, detector, topics, progress=not args.no_progress, slop=args.slop,
-                queue_size=args.queue_size, depth_scale=args.depth_scale, up=args.up,
-                size_mismatch=args.size_mismatch, write_detections=not args.no_detections,
-                overwrite=args.overwrite, copy_input=not args.no_copy, should_stop=stop,
-                scene=scene_options(args),
-            )
-        except (OSError, ValueError, BagReadError) as e:
-            return _exit_for(e)
+            rc = _replay(args, detector, replay_bag, stop)
+        finally:
+            close = getattr(detector, "close", None)
+            if callable(close):
+                close()
+    return rc
+
+
+def _detector(args: argparse.Namespace, config: Any, make_detector: Any) -> Any:
+    """The detector: in ``--processes`` worker processes (started and warmed up), else here."""
+    if not getattr(args, "processes", 0):
+        return make_detector(config, args.detector)
+    from ..process_detector import ProcessDetector
+
+    det = ProcessDetector(config, args.processes, args.detector or "")
+    try:
+        det.warm_up()
+    except BaseException:
+        det.close()
+        raise
+    return det
+
+
+def _replay(args: argparse.Namespace, detector: Any, replay_bag: Any, stop: Any) -> int:
+    """Replay with a built detector; the exit status."""
+    from ..replay import scene_options
+    from .source import BagReadError
+
+    if stop.name:
+        _err(f"interrupted by {stop.name} before any frame was read; nothing written")
+        return EXIT_SIGTERM if stop.name == "SIGTERM" else EXIT_SIGINT
+    topics = {k: getattr(args, k) for k in ("image", "depth", "camera_info", "imu", "detections2d")}
+    try:
+        summary = replay_bag(
+            args.bag, args.out, detector, topics, progress=not args.no_progress, slop=args.slop,
+            queue_size=args.queue_size, depth_scale=args.depth_scale, up=args.up,
+            size_mismatch=args.size_mismatch, write_detections=not args.no_detections,
+            overwrite=args.overwrite, copy_input=not args.no_copy, should_stop=stop,
+            scene=scene_options(args),
+        )
+    except (OSError, ValueError, BagReadError) as e:
+        return _exit_for(e)
     _print_summary(summary, args.json)
     return _exit_status(summary)
 

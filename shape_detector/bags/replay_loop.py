@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
+from dataclasses import dataclass, field
 from typing import Any
 
 from ..frame_prep import FrameError
@@ -30,31 +32,64 @@ def check_replay_args(depth_scale: float | None, slop: float, queue_size: int) -
         raise ValueError(f"queue_size must be >= 1, got {queue_size!r}")
 
 
-def _detect_frame(frame: Any, detector: Any, summary: Any, up_vec: Any,
-                  depth_scale: float | None, size_mismatch: str) -> tuple[Any, list]:
-    """Prepare and detect one synchronised frame; failures are counted in ``summary``."""
-    objects: list = []
-    prepared = None
+@dataclass
+class _InFlight:
+    """A frame between reading and writing: its input copies, checked input and detection."""
+
+    frame: Any
+    copies: list[RawMessage] = field(default_factory=list)
+    prepared: Any = None
+    up: Any = None
+    job: Any = None  # a Future from the detector's submit(); None: nothing to wait for
+    objects: list = field(default_factory=list)
+    detected: bool = False
+
+
+def _start_frame(entry: _InFlight, detector: Any, summary: Any, up_vec: Any, depth_scale: float | None,
+                 size_mismatch: str, submit: bool) -> None:
+    """Check one synchronised frame and start (``submit``: hand to the detector's workers) or
+    run its detection; failures are counted in ``summary``."""
+    frame = entry.frame
     try:
-        prepared = frame.prepare(depth_scale=depth_scale, size_mismatch=size_mismatch)
+        prepared = entry.prepared = frame.prepare(depth_scale=depth_scale, size_mismatch=size_mismatch)
         for note in prepared.notes:
             summary.notes[note] += 1
         if prepared.valid_depth_fraction == 0.0:
             summary.skipped["no valid depth"] += 1
-        else:
-            frame_up = up_vec if up_vec is not None else frame.up
-            td = time.perf_counter()
-            objects = list(detector.detect(prepared.rgb, prepared.depth, prepared.K,
-                                           boxes2d=prepared.boxes2d, up=frame_up))
-            summary.detect_ms.append((time.perf_counter() - td) * 1e3)
-            summary.detected += 1
+            return
+        entry.up = up_vec if up_vec is not None else frame.up
+        args = (prepared.rgb, prepared.depth, prepared.K)
+        if submit:
+            entry.job = detector.submit(*args, boxes2d=prepared.boxes2d, up=entry.up)
+            return
+        td = time.perf_counter()
+        entry.objects = list(detector.detect(*args, boxes2d=prepared.boxes2d, up=entry.up))
+        summary.detect_ms.append((time.perf_counter() - td) * 1e3)
+        summary.detected += 1
+        entry.detected = True
     except FrameError as e:
         summary.skipped[e.kind] += 1
         summary.notes[f"frame skipped: {e}"] += 1
     except Exception as e:  # noqa: BLE001 - a detector failure must not end the replay
-        summary.skipped["detector error"] += 1
-        summary.notes[f"detector error: {type(e).__name__}: {e}"] += 1
-    return prepared, objects
+        _detector_error(summary, e)
+
+
+def _wait_frame(entry: _InFlight, detector: Any, summary: Any) -> None:
+    """The objects of a frame handed to the detector's workers (failures counted)."""
+    if entry.job is None:
+        return
+    try:
+        entry.objects = list(detector.finish(entry.job))
+        summary.detect_ms.append(float(detector.last_detect_ms))
+        summary.detected += 1
+        entry.detected = True
+    except Exception as e:  # noqa: BLE001
+        _detector_error(summary, e)
+
+
+def _detector_error(summary: Any, e: Exception) -> None:
+    summary.skipped["detector error"] += 1
+    summary.notes[f"detector error: {type(e).__name__}: {e}"] += 1
 
 
 def count_damage(summary: Any, source: Any, image_topic: str) -> None:
@@ -69,9 +104,17 @@ def count_damage(summary: Any, source: Any, image_topic: str) -> None:
 def replay_loop(reader: BagFrameReader, out: Any, detector: Any, summary: Any, bar: Any, *,
                 copy_input: bool, up_vec: Any, depth_scale: float | None, size_mismatch: str,
                 on_frame: Any, should_stop: Any, scene: Any = None) -> None:
-    """Read, detect, write; returns normally after input damage or a stop request."""
+    """Read, detect, write; returns normally after input damage or a stop request.
+
+    A detector with ``submit`` / ``finish`` and ``processes`` (detector worker processes)
+    gets that many frames at once plus one queued while this loop reads and writes; frames are still
+    written in input order, each after the input messages read before it (as without
+    workers), and the frames in flight at a stop or a read error are finished and written."""
     source = reader.source
     roles = reader.selection.roles()
+    window = int(getattr(detector, "processes", 0)) if hasattr(detector, "submit") else 0
+    copies: list[RawMessage] = []  # input messages read since the last frame (with a window)
+    in_flight: deque[_InFlight] = deque()
 
     def check_stop() -> None:
         if should_stop is not None and (why := should_stop()):
@@ -86,28 +129,46 @@ def replay_loop(reader: BagFrameReader, out: Any, detector: Any, summary: Any, b
         elif role == "depth":
             summary.depth_in += 1
         if copy_input:
+            if window:
+                copies.append(m)
+            else:
+                out.copy(m, source)
+        bar.update(summary.messages_in, summary.frames_out)
+
+    def write(entry: _InFlight) -> None:
+        for m in entry.copies:
             out.copy(m, source)
+        _wait_frame(entry, detector, summary)
+        frame, objects = entry.frame, entry.objects
+        out.write_objects(objects, frame.stamp_ns, frame.frame_id)
+        if scene is not None:  # one scene and map per frame; a skipped frame repeats the current state
+            used = entry.prepared if entry.detected else None  # learn only from detected frames
+            scene.update(frame, used, objects, up_vec if up_vec is not None else frame.up)
+            scene.write(out, frame.stamp_ns)
+        summary.frames_out += 1
+        summary.objects += len(objects)
+        summary.objects_per_class.update(o.class_name for o in objects)
+        if on_frame is not None:
+            on_frame(frame, entry.prepared, objects)
         bar.update(summary.messages_in, summary.frames_out)
 
     try:
         check_stop()
         for frame in reader.frames(on_message=on_message, all_topics=copy_input):
             summary.synced += 1
-            detected = summary.detected
-            prepared, objects = _detect_frame(frame, detector, summary, up_vec, depth_scale, size_mismatch)
-            out.write_objects(objects, frame.stamp_ns, frame.frame_id)
-            if scene is not None:  # one scene and map per frame; a skipped frame repeats the current state
-                used = prepared if summary.detected > detected else None  # learn only from detected frames
-                scene.update(frame, used, objects, up_vec if up_vec is not None else frame.up)
-                scene.write(out, frame.stamp_ns)
-            summary.frames_out += 1
-            summary.objects += len(objects)
-            summary.objects_per_class.update(o.class_name for o in objects)
-            if on_frame is not None:
-                on_frame(frame, prepared, objects)
-            bar.update(summary.messages_in, summary.frames_out)
+            entry = _InFlight(frame, copies[:])
+            copies.clear()
+            _start_frame(entry, detector, summary, up_vec, depth_scale, size_mismatch, submit=window > 0)
+            in_flight.append(entry)
+            while len(in_flight) > window:  # the workers busy, one frame queued behind them
+                write(in_flight.popleft())
             check_stop()
     except BagReadError as e:
         summary.error = str(e)
     except _Stopped as e:
         summary.interrupted = str(e)
+    finally:
+        while in_flight:  # frames already handed over are finished and written, never lost
+            write(in_flight.popleft())
+        for m in copies:
+            out.copy(m, source)
