@@ -144,6 +144,11 @@ def build_detector(p: dict[str, Any], external: bool, factory: Callable[..., Any
         from .process_detector import ProcessDetector
 
         det: Any = ProcessDetector(config, processes, p["detector_factory"])
+        try:  # workers that cannot start would fail every frame: say so at once instead
+            det.warm_up()
+        except BaseException:
+            det.close()
+            raise
         name = f"{p['detector_factory'] or 'ShapeDetector'} in {processes} worker process(es)"
     else:
         if factory is None and p["detector_factory"]:
@@ -155,7 +160,7 @@ def build_detector(p: dict[str, Any], external: bool, factory: Callable[..., Any
             for attr in DETECTOR_ATTRS:
                 apply_to_detector(det, attr, p[attr])
         name = type(det).__name__
-    if hasattr(det, "warm_up"):  # first-call costs now, not on the first camera frame
+    if hasattr(det, "warm_up") and processes <= 0:  # first-call costs now, not on the first camera frame
         try:
             det.warm_up()
         except Exception as exc:  # a failed warm-up must not stop the node; frames will tell

@@ -12,8 +12,8 @@ so two workers are busy and output stays in input order.
 Frames travel to the workers through shared memory (one segment per frame, removed once its
 objects are back): a 2 MB VGA colour + depth pair sent down the executor's pipe costs several
 milliseconds, the copy a fraction of one. The objects come back pickled. A worker that dies is
-replaced and the frames it held fail with an error; workers ignore Ctrl-C and SIGTERM (the
-parent stops them) and exit when the parent is killed outright.
+replaced and the frames it held fail with an error; workers ignore Ctrl-C (the parent stops
+them) and exit when the parent is killed outright.
 """
 
 from __future__ import annotations
@@ -38,18 +38,19 @@ log = logging.getLogger(__name__)
 
 #: the detector of this worker process (None in the parent)
 _DETECTOR: Any = None
+#: seconds between two restarts of dead workers (frames in between fail)
+RESTART_BACKOFF_S = 5.0
 #: the dynamic settings this worker has applied (name -> value)
 _APPLIED: dict[str, Any] = {}
 
 
 def _start(config: DetectorConfig, factory: str, parent: int) -> None:
-    """Worker initialiser: build and warm up this process's detector. Ctrl-C (and a
-    service manager's SIGTERM) reaches the whole process group: the parent finishes the frames
-    in flight and stops the workers, so they ignore both; a worker whose parent ``parent`` is
-    gone (killed outright) exits."""
+    """Worker initialiser: build and warm up this process's detector. Ctrl-C reaches the
+    whole terminal's process group: the parent finishes the frames in flight and stops the
+    workers, so they ignore it; a worker whose parent ``parent`` is gone (killed outright)
+    exits."""
     global _DETECTOR
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # not SIGTERM: the executor stops broken pools with it
     threading.Thread(target=_exit_with_parent, args=(parent,), name="parent_watch", daemon=True).start()
     if factory:  # as the node builds a custom detector: factory arguments, then dynamic settings
         from .bags.detector_factory import factory_kwargs, load_factory
@@ -104,20 +105,34 @@ def _detect_shared(name: str, rgb_spec: tuple, depth_spec: tuple, K: np.ndarray,
     return _detect(rgb, depth, K, boxes2d, up, changes)
 
 
-def _share(rgb: np.ndarray, depth: np.ndarray) -> SharedMemory:
-    """A shared-memory segment holding ``rgb`` then ``depth`` (C order)."""
-    shm = SharedMemory(create=True, size=max(rgb.nbytes + depth.nbytes, 1))
-    np.ndarray(rgb.shape, rgb.dtype, buffer=shm.buf)[...] = rgb
-    np.ndarray(depth.shape, depth.dtype, buffer=shm.buf, offset=rgb.nbytes)[...] = depth
-    return shm
+class _Segment:
+    """One frame's shared memory (``rgb`` then ``depth``, C order), released once (the
+    executor's callback thread and the waiting thread may both try)."""
 
+    def __init__(self, rgb: np.ndarray, depth: np.ndarray) -> None:
+        self.shm = SharedMemory(create=True, size=max(rgb.nbytes + depth.nbytes, 1))
+        np.ndarray(rgb.shape, rgb.dtype, buffer=self.shm.buf)[...] = rgb
+        np.ndarray(depth.shape, depth.dtype, buffer=self.shm.buf, offset=rgb.nbytes)[...] = depth
+        self._lock = threading.Lock()
+        self._released = False
 
-def _release(shm: SharedMemory) -> None:
-    try:
-        shm.close()
-        shm.unlink()
-    except (FileNotFoundError, BufferError):  # already gone, or a view still open (freed at exit)
-        pass
+    @property
+    def name(self) -> str:
+        return self.shm.name
+
+    def release(self) -> None:
+        with self._lock:  # held throughout: whoever comes second returns once it is gone
+            if self._released:
+                return
+            self._released = True
+            try:
+                self.shm.unlink()  # the name first: it goes even while a view keeps the mapping
+            except FileNotFoundError:
+                pass
+            try:
+                self.shm.close()
+            except BufferError:  # a view still open: the mapping goes with it
+                pass
 
 
 def _describe(hold_s: float) -> tuple[int, str, str | None, str | None]:
@@ -157,6 +172,7 @@ class ProcessDetector:
         self.predictor = WorkerRuntime()
         self.worker_pids: list[int] = []
         self._changes: dict[str, Any] = {}
+        self._restarted_at = -float("inf")
         self._pool = self._new_pool()
 
     def _new_pool(self) -> ProcessPoolExecutor:
@@ -164,9 +180,14 @@ class ProcessDetector:
                                    initargs=(self.config, self.factory, os.getpid()))
 
     def warm_up(self) -> None:
-        """Start every worker (each builds and warms up its detector) and wait for them."""
-        futures = [self._pool.submit(_describe, 0.3) for _ in range(self.processes)]
-        described = [f.result() for f in futures]
+        """Start every worker (each builds and warms up its detector) and wait for them;
+        RuntimeError naming the cause when they cannot start (the workers print its traceback)."""
+        try:
+            futures = [self._pool.submit(_describe, 0.3) for _ in range(self.processes)]
+            described = [f.result() for f in futures]
+        except BrokenProcessPool as e:
+            raise RuntimeError(f"the detector worker processes could not start ({e}); their error output "
+                               "above says why") from None
         self.worker_pids = sorted({d[0] for d in described})
         _, _, backend, precision = described[0]
         self.predictor = WorkerRuntime(backend, precision)
@@ -181,15 +202,16 @@ class ProcessDetector:
         """Hand one frame to a worker (returns at once); :meth:`finish` waits for it."""
         rgb, depth = np.ascontiguousarray(rgb), np.ascontiguousarray(depth)
         changes = tuple(sorted(self._changes.items()))
-        shm = _share(rgb, depth)
+        segment = _Segment(rgb, depth)
         try:
-            job = self._pool.submit(_detect_shared, shm.name, (rgb.shape, rgb.dtype.str),
+            job = self._pool.submit(_detect_shared, segment.name, (rgb.shape, rgb.dtype.str),
                                     (depth.shape, depth.dtype.str), K, boxes2d, up, changes)
         except BrokenProcessPool:
-            _release(shm)
+            segment.release()
             self._restart()
             raise RuntimeError("a detector process had died; the workers were restarted") from None
-        job.add_done_callback(lambda _: _release(shm))
+        job.add_done_callback(lambda _: segment.release())  # also for frames never waited for
+        setattr(job, "shared_memory", segment)  # noqa: B010 - finish() releases it before returning
         return job
 
     #: the offline replay's name for :meth:`prepare` (frames handed over, waited for in order)
@@ -198,7 +220,11 @@ class ProcessDetector:
     def finish(self, job: Future) -> list:
         """The objects of a frame handed over by :meth:`prepare` (camera optical frame)."""
         try:
-            objects, up, timing, ms = job.result()
+            try:
+                objects, up, timing, ms = job.result()
+            finally:  # the done-callback may run only after this thread has woken
+                if (segment := getattr(job, "shared_memory", None)) is not None:
+                    segment.release()
         except BrokenProcessPool:
             self._restart()
             raise RuntimeError("a detector process died; the workers were restarted") from None
@@ -211,6 +237,11 @@ class ProcessDetector:
         return self.finish(self.prepare(rgb, depth, K, boxes2d=boxes2d, up=up))
 
     def _restart(self) -> None:
+        # a worker that dies at once again (a bad build, no memory) must not respawn every frame
+        now = time.monotonic()
+        if now - self._restarted_at < RESTART_BACKOFF_S:
+            return
+        self._restarted_at = now
         log.error("a detector process died; starting new ones")
         self._pool.shutdown(wait=False, cancel_futures=True)
         self._pool = self._new_pool()
@@ -224,7 +255,7 @@ class ProcessDetector:
         for proc in processes:
             proc.join(max(0.0, deadline - time.monotonic()))
             if proc.is_alive():
-                proc.kill()  # workers ignore SIGTERM
+                proc.kill()
 
     def __enter__(self) -> ProcessDetector:
         return self

@@ -162,3 +162,12 @@ def test_workers_ignore_ctrl_c_and_exit_with_a_killed_parent(tmp_path):
         if proc.poll() is None:
             proc.kill()
             proc.wait(10)
+
+
+def test_workers_that_cannot_start_say_so_at_warm_up():
+    det = ProcessDetector(preset("realtime"), 1, "no_such_module_here:Factory")
+    try:
+        with pytest.raises(RuntimeError, match="could not start"):
+            det.warm_up()
+    finally:
+        det.close()
