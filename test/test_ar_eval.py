@@ -44,6 +44,7 @@ def test_true_scene_scores_perfectly(walk) -> None:
     r = evaluate_map(truth, gt_map(truth), cams, seen_objects(wt.frames, 50, 1), np.random.default_rng(0),
                      n_rays=500, n_points=500, n_pairs=10)
     assert r["ray_within_5cm"] == 1.0 and r["rays_used"] > 50
+    assert r["ray_floor_within_5cm"] == 1.0 and r["rays_floor"] > 20  # the true grid's floor at z = 0
     assert r["collide_precision"] == 1.0 and r["collide_recall"] == 1.0 and r["collide_points"] > 100
     assert r["plan_found"] == 1.0 and r["plan_clear"] == 1.0 and r["plan_pairs"] >= 5
 
@@ -55,7 +56,7 @@ def test_shifted_scene_scores_worse(walk) -> None:
              for o in truth.objects.objects]
     r = evaluate_map(truth, ArScene(moved, truth.grid), cams, seen_objects(wt.frames, 50, 1),
                      np.random.default_rng(0), n_rays=500, n_points=500, n_pairs=5)
-    assert r["ray_object_within_5cm"] < 0.8
+    assert r["ray_within_5cm"] < 0.8
     assert r["collide_precision"] < 0.9 and r["collide_recall"] < 0.9
 
 
