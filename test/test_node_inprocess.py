@@ -381,6 +381,14 @@ def test_detector_in_worker_processes_publishes_every_frame_in_order(ros_context
         h.node.set_parameters([Parameter("score_threshold", value=0.6)])
         h.frame(time.time_ns())
         assert len(h.wait_markers(7)) == 7 and h.node.get_stats().get("detector_errors", 0) == 0
+        old = h.node.detector
+        h.node.set_parameters([Parameter("backend", value="onnxruntime")])  # rebuilds the detector
+        h.frame(time.time_ns())
+        assert len(h.wait_markers(8)) == 8 and h.node.get_stats().get("detector_errors", 0) == 0
+        assert h.node.detector is not old and isinstance(h.node.detector, ProcessDetector)
+        replaced = [p for p in pids if p not in h.node.detector.worker_pids]
+        assert replaced == pids  # the old workers were stopped when the new ones took over
+        pids = pids + list(h.node.detector.worker_pids)
     finally:
         h.close()
     deadline = time.monotonic() + 5
