@@ -68,6 +68,7 @@ def _start(config: DetectorConfig, factory: str, parent: int) -> None:
 
 
 def _exit_with_parent(parent: int, period: float = 0.5) -> None:
+    """Worker thread: end this process once ``parent`` is no longer its parent."""
     while os.getppid() == parent:
         time.sleep(period)
     os._exit(0)  # nothing to flush: the detector holds no state worth keeping
@@ -208,8 +209,7 @@ class ProcessDetector:
                                     (depth.shape, depth.dtype.str), K, boxes2d, up, changes)
         except BrokenProcessPool:
             segment.release()
-            self._restart()
-            raise RuntimeError("a detector process had died; the workers were restarted") from None
+            raise RuntimeError(f"a detector process had died; {self._restart()}") from None
         job.add_done_callback(lambda _: segment.release())  # also for frames never waited for
         setattr(job, "shared_memory", segment)  # noqa: B010 - finish() releases it before returning
         return job
@@ -226,8 +226,7 @@ class ProcessDetector:
                 if (segment := getattr(job, "shared_memory", None)) is not None:
                     segment.release()
         except BrokenProcessPool:
-            self._restart()
-            raise RuntimeError("a detector process died; the workers were restarted") from None
+            raise RuntimeError(f"a detector process died; {self._restart()}") from None
         self.last_up, self.last_timing, self.last_detect_ms = up, timing, ms
         return objects
 
@@ -236,15 +235,18 @@ class ProcessDetector:
         """One frame, waited for."""
         return self.finish(self.prepare(rgb, depth, K, boxes2d=boxes2d, up=up))
 
-    def _restart(self) -> None:
+    def _restart(self) -> str:
+        """Replace the broken pool (at most every ``RESTART_BACKOFF_S``); what was done."""
         # a worker that dies at once again (a bad build, no memory) must not respawn every frame
         now = time.monotonic()
         if now - self._restarted_at < RESTART_BACKOFF_S:
-            return
+            return "new workers were started moments ago"
         self._restarted_at = now
         log.error("a detector process died; starting new ones")
         self._pool.shutdown(wait=False, cancel_futures=True)
         self._pool = self._new_pool()
+        self.worker_pids = []  # known again after the next warm_up()
+        return "new workers are starting"
 
     def close(self, timeout: float = 5.0) -> None:
         """Stop the workers: frames not started are cancelled, a worker still busy after
