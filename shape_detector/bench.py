@@ -173,8 +173,7 @@ def bench_pipeline(
     if processes > 0:
         from .process_detector import ProcessDetector
 
-        with ProcessDetector(det.config, processes) as pool:
-            pool.warm_up()
+        with ProcessDetector.started(det.config, processes) as pool:
             res = _bench_pipelined(pool, scenes)
         out["builtin_processes"] = res
         print(f"pipeline[builtin, node's pipeline, detector_processes={processes}]: {res['ms_per_frame']:.1f} ms/frame "

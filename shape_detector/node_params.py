@@ -143,12 +143,8 @@ def build_detector(p: dict[str, Any], external: bool, factory: Callable[..., Any
     if processes > 0:  # the workers build it from the factory's name: a callable cannot travel
         from .process_detector import ProcessDetector
 
-        det: Any = ProcessDetector(config, processes, p["detector_factory"])
-        try:  # workers that cannot start would fail every frame: say so at once instead
-            det.warm_up()
-        except BaseException:
-            det.close()
-            raise
+        # workers that cannot start would fail every frame: started() says so at once instead
+        det: Any = ProcessDetector.started(config, processes, p["detector_factory"])
         name = f"{p['detector_factory'] or 'ShapeDetector'} in {processes} worker process(es)"
     else:
         if factory is None and p["detector_factory"]:

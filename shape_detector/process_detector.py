@@ -176,6 +176,17 @@ class ProcessDetector:
         self._restarted_at = -float("inf")
         self._pool = self._new_pool()
 
+    @classmethod
+    def started(cls, config: DetectorConfig, processes: int = 2, factory: str = "") -> ProcessDetector:
+        """A ProcessDetector whose workers are up and warmed up (closed again if they fail)."""
+        det = cls(config, processes, factory)
+        try:
+            det.warm_up()
+        except BaseException:
+            det.close()
+            raise
+        return det
+
     def _new_pool(self) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(self.processes, mp_context=get_context("spawn"), initializer=_start,
                                    initargs=(self.config, self.factory, os.getpid()))

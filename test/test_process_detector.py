@@ -171,3 +171,5 @@ def test_workers_that_cannot_start_say_so_at_warm_up():
             det.warm_up()
     finally:
         det.close()
+    with pytest.raises(RuntimeError, match="could not start"):
+        ProcessDetector.started(preset("realtime"), 1, "no_such_module_here:Factory")

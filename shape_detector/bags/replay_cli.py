@@ -124,13 +124,7 @@ def _detector(args: argparse.Namespace, config: Any, make_detector: Any) -> Any:
         return make_detector(config, args.detector)
     from ..process_detector import ProcessDetector
 
-    det = ProcessDetector(config, args.processes, args.detector or "")
-    try:
-        det.warm_up()
-    except BaseException:
-        det.close()
-        raise
-    return det
+    return ProcessDetector.started(config, args.processes, args.detector or "")
 
 
 def _replay(args: argparse.Namespace, detector: Any, replay_bag: Any, stop: Any) -> int:
