@@ -22,9 +22,10 @@ class NodeConfig:
                                   "thread), network (first thread) or auto (split over both, the share of the "
                                   "frame's frustums that balances the threads)",
                                   choices=("auto", "prepare", "network"))
-    detector_processes: int = setting(0, "run the detector in this many worker processes (frames in flight run in "
-                                      "parallel, outside this process's interpreter lock; about 150 MiB each); "
-                                      "0 = in the node's own threads", range=(0, 16))
+    detector_processes: int = setting(0, "run the detector in worker processes: with pipeline, the two frames in "
+                                      "flight run in parallel outside this process's interpreter lock (about 150 "
+                                      "MiB each; the node keeps two frames in flight, so 2 is the useful value); "
+                                      "0 = in the node's own threads", range=(0, 2))
     sync_slop: float = setting(0.02, "approximate time synchroniser slop between image and depth stamps, s",
                                range=(0.0, 10.0), node="dynamic")
     sync_queue_size: int = setting(10, "synchroniser queue size per input topic", range=(1, 1000), node="dynamic")
