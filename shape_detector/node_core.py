@@ -20,7 +20,8 @@ import numpy as np
 from .imu_gravity import ImuGravityFilter
 from .node_params import DETECTOR_ATTRS, PARAMETERS, REBUILD, apply_to_detector, build_detector, validate
 from .node_stats import NodeStats, WarningLimiter, problem_key, stats_line
-from .scheduler import FrameScheduler, FrameSet, close_detector
+from .process_detector import close_detector
+from .scheduler import FrameScheduler, FrameSet
 from .sync import ApproximateTimeSynchronizer, header_stamp_ns
 
 

@@ -52,17 +52,12 @@ def _start(config: DetectorConfig, factory: str, parent: int) -> None:
     global _DETECTOR
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # not SIGTERM: the executor stops broken pools with it
     threading.Thread(target=_exit_with_parent, args=(parent,), name="parent_watch", daemon=True).start()
-    if factory:  # as the node builds a custom detector: factory arguments, then dynamic settings
-        from .bags.detector_factory import factory_kwargs, load_factory
-        from .node_params import DETECTOR_ATTRS, apply_to_detector
+    from .bags.detector_factory import make_detector
+    from .node_params import DETECTOR_ATTRS
 
-        _DETECTOR = load_factory(factory)(**factory_kwargs(config))
-        for name in DETECTOR_ATTRS:
-            apply_to_detector(_DETECTOR, name, getattr(config, name))
-    else:
-        from .detector import ShapeDetector
-
-        _DETECTOR = ShapeDetector(config)
+    _DETECTOR = make_detector(config, factory or None)
+    if factory:  # as the node builds a custom detector: dynamic settings follow as attributes
+        _apply(tuple((name, getattr(config, name)) for name in DETECTOR_ATTRS))
     if hasattr(_DETECTOR, "warm_up"):
         _DETECTOR.warm_up()
 
@@ -142,6 +137,17 @@ def _describe(hold_s: float) -> tuple[int, str, str | None, str | None]:
     time.sleep(hold_s)
     pred = getattr(_DETECTOR, "predictor", None)
     return os.getpid(), type(_DETECTOR).__name__, getattr(pred, "backend", None), getattr(pred, "precision", None)
+
+
+def close_detector(det: Any) -> None:
+    """Release a detector's resources (a ProcessDetector's workers) if it has any to release;
+    never raises (shutting down must not fail on it)."""
+    close = getattr(det, "close", None)
+    if callable(close):
+        try:
+            close()
+        except Exception as e:  # noqa: BLE001
+            log.error("closing the detector: %s: %s", type(e).__name__, e)
 
 
 @dataclass

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from .frame_prep import FrameError, prepare_frame
+from .process_detector import close_detector
 from .sync import LatestMailbox, header_stamp_ns
 
 #: longest a thread is waited for at shutdown, seconds: a detector stuck in a frame must
@@ -57,16 +58,6 @@ class Job:
     objects: list = field(default_factory=list)
     frame: Any = None  # the checked input (PreparedFrame); None: skipped
     detect_ms: float | None = None  # detector time so far; None: the detector did not succeed
-
-
-def close_detector(det: Any) -> None:
-    """Release a detector's resources (worker processes) if it has any to release."""
-    close = getattr(det, "close", None)
-    if callable(close):
-        try:
-            close()
-        except Exception as e:  # noqa: BLE001 - shutting down must not fail on it
-            print(f"[shape_detector] closing the detector: {type(e).__name__}: {e}", file=sys.stderr)
 
 
 class FrameScheduler:

@@ -91,6 +91,7 @@ def run_offline(args: argparse.Namespace, make_detector: Any, replay_bag: Any) -
 
 def _run(args: argparse.Namespace, make_detector: Any, replay_bag: Any) -> int:
     from ..config_cli import config_from_args
+    from ..process_detector import close_detector
 
     if (rc := _check_output_early(args)) is not None:
         return rc
@@ -112,9 +113,7 @@ def _run(args: argparse.Namespace, make_detector: Any, replay_bag: Any) -> int:
         try:
             rc = _replay(args, detector, replay_bag, stop)
         finally:
-            close = getattr(detector, "close", None)
-            if callable(close):
-                close()
+            close_detector(detector)
     return rc
 
 
