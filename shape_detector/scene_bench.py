@@ -3,8 +3,9 @@
 A generated room with 20 pieces of furniture seen from a camera walking past them at VGA;
 each frame gives the map the boxes in view with noise (no network runs). Prints the mean
 and 95th percentile of: the update without depth (association, fusion, merging), the full
-update with depth (plus negative evidence and the floor), the floor integration alone (the
-grid's depth part) and building the grid when asked.
+update with depth (plus negative evidence, the floor and the observed surfaces), the floor
+integration alone (the grid's depth part), the surface integration alone, building the grid
+and listing the objects with their observed surfaces (for JSON and ray casts) when asked.
 """
 
 from __future__ import annotations
@@ -74,7 +75,7 @@ def run(n_frames: int = 60, tracks: int = 20) -> dict[str, list[float]]:
     boxes = scene(tracks)
     data = list(frames(boxes, n_frames))
     times: dict[str, list[float]] = {"update_no_depth": [], "update_with_depth": [], "floor_integration": [],
-                                     "grid_build": []}
+                                     "surface_integration": [], "grid_build": [], "objects_with_surfaces": []}
     a, b, c = SceneMap(), SceneMap(), SceneMap()
     for i, (T, depth, dets) in enumerate(data):
         t0 = time.perf_counter()
@@ -84,9 +85,13 @@ def run(n_frames: int = 60, tracks: int = 20) -> dict[str, list[float]]:
         t2 = time.perf_counter()
         c.integrate_floor(T, depth, K)
         t3 = time.perf_counter()
-        b.grid()
+        c.integrate_surface(T, depth, K)
         t4 = time.perf_counter()
-        for k, dt in zip(times, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
+        b.grid()
+        t5 = time.perf_counter()
+        b.objects(surfaces=True)
+        t6 = time.perf_counter()
+        for k, dt in zip(times, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4, t6 - t5)):
             times[k].append(1000.0 * dt)
     times["tracks"] = [float(len(b.tracks))]
     return times
@@ -104,8 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     for k, ms in t.items():
         v = np.asarray(ms[skip:])
         print(f"  {k:20s} mean {v.mean():6.2f} ms   p95 {np.percentile(v, 95):6.2f} ms")
-    upd = np.asarray(t["update_with_depth"][skip:]) - np.asarray(t["floor_integration"][skip:])
-    print(f"  {'update w/o floor':20s} mean {upd.mean():6.2f} ms   (target <= 5 ms)")
+    print(f"  target: update_with_depth <= 5 ms per frame (mean {np.mean(t['update_with_depth'][skip:]):.2f} ms)")
     return 0
 
 

@@ -1,14 +1,16 @@
 """Benchmark of the AR queries: ``python -m shape_detector.ar.bench``.
 
 Prints the median time of 10,000 ``collides`` queries (one batch, points within 30 cm of
-furniture) and of 1,000 ray casts (one batch) against a 20-object scene, and of a plan across
-a 10 m x 10 m grid at 5 cm (graph build included, and on a cached graph); single queries too.
+furniture) and of 1,000 ray casts (one batch) against a 20-object scene whose objects carry
+observed surface points on every face (and on the primitives alone), and of a plan across a
+10 m x 10 m grid at 5 cm (graph build included, and on a cached graph); single queries too.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 from collections.abc import Callable
 
 import numpy as np
@@ -17,6 +19,7 @@ from . import collision, planning
 from .queries import SceneQueries
 from .rays import raycast_many
 from ..scene.grid import NavGrid
+from ..scene.surface import SurfaceMemory
 from ..scene.types import SceneObject, ScenePrimitive
 from .scene_data import ArScene
 
@@ -26,9 +29,28 @@ def _rotz(a: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def bench_scene(n_objects: int = 20, room: float = 10.0, seed: int = 0) -> ArScene:
+def face_points(prims: list[ScenePrimitive], voxel: float = 0.02) -> np.ndarray:
+    """Surface points as the scene map keeps them: the faces of ``prims`` sampled at half a
+    voxel, then one mean point per ``voxel`` cube (world frame)."""
+    pts = []
+    for p in prims:
+        axes = [np.linspace(-0.5, 0.5, max(2, int(np.ceil(s / (0.5 * voxel))) + 1)) * s for s in p.size]
+        for k in range(3):
+            for side in (-0.5, 0.5):
+                a, b = [axes[j] for j in range(3) if j != k]
+                g = np.stack(np.meshgrid(a, b, indexing="ij"), -1).reshape(-1, 2)
+                q = np.zeros((len(g), 3))
+                q[:, [j for j in range(3) if j != k]] = g
+                q[:, k] = side * p.size[k]
+                pts.append(q @ p.rotation.T + p.center)
+    mem = SurfaceMemory(voxel)
+    mem.add(np.concatenate(pts))
+    return mem.points()
+
+
+def bench_scene(n_objects: int = 20, room: float = 10.0, seed: int = 0, surfaces: bool = True) -> ArScene:
     """``n_objects`` tables (top + four legs, turned about z) on a ``room`` x ``room`` m floor, with
-    the 5 cm grid of their footprints."""
+    the 5 cm grid of their footprints; ``surfaces``: each with surface points on all its faces."""
     rng = np.random.default_rng(seed)
     objects = []
     for i in range(n_objects):
@@ -40,7 +62,8 @@ def bench_scene(n_objects: int = 20, room: float = 10.0, seed: int = 0) -> ArSce
             for sy in (-1, 1):
                 off = np.array([sx * (ln / 2 - 0.03), sy * (w / 2 - 0.03), (h - 0.04) / 2])
                 prims.append(ScenePrimitive(c + R @ off, np.array([0.06, 0.06, h - 0.04]), R))
-        objects.append(SceneObject(i + 1, "table", 1.0, c + np.array([0, 0, h / 2]), np.array([ln, w, h]), R, primitives=prims))
+        objects.append(SceneObject(i + 1, "table", 1.0, c + np.array([0, 0, h / 2]), np.array([ln, w, h]), R,
+                                   primitives=prims, surface=face_points(prims) if surfaces else None))
     res = 0.05
     n = int(round(room / res))
     data = np.zeros((n, n), np.int8)
@@ -64,6 +87,7 @@ def _median_ms(fn: Callable[[], object], repeats: int) -> float:
 def run(repeats: int = 20, seed: int = 0) -> dict[str, float]:
     """Median milliseconds of each benchmark (see module doc)."""
     scene = bench_scene(seed=seed)
+    bare = ArScene(scene.objects and [replace(o, surface=None) for o in scene.objects], scene.grid)
     rng = np.random.default_rng(seed + 1)
     owners = rng.integers(0, len(scene.objects), 10_000)
     centers = np.array([scene.objects[k].center for k in owners])
@@ -80,7 +104,9 @@ def run(repeats: int = 20, seed: int = 0) -> dict[str, float]:
         "boxes": float(len(scene.boxes)),
         "collides_10k_ms": _median_ms(lambda: collision.collides_many(scene, pts, 0.1), repeats),
         "collides_single_us": 1e3 * _median_ms(lambda: collision.collides(scene, pts[0], 0.1), repeats * 10),
+        "surface_points": float(len(scene.surface_index)),
         "raycast_1k_ms": _median_ms(lambda: raycast_many(scene, origins, dirs), repeats),
+        "raycast_1k_primitives_ms": _median_ms(lambda: raycast_many(bare, origins, dirs), repeats),
         "raycast_single_us": 1e3 * _median_ms(lambda: q.raycast(origins[0], dirs[0]), repeats * 10),
         "plan_10m_cold_ms": _median_ms(lambda: planning.plan(scene, start, goal, 0.2), max(3, repeats // 4)),
         "plan_10m_cached_ms": _median_ms(lambda: q.plan(start, goal, 0.2), repeats),

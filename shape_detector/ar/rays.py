@@ -1,9 +1,12 @@
-"""Ray casts against the scene's oriented boxes and the floor plane (slab method).
+"""Ray casts against the scene's observed surfaces, oriented boxes and the floor plane.
 
 World frame, metres. Directions need not be unit length; distances are along the unit
-direction. Boxes that contain a ray's origin are ignored by that ray (a camera inside a
-loosely estimated box still sees what is in front of it). The floor is the plane
-``z = floor_z`` seen from above; its hits report ``FLOOR_ID``.
+direction. Where an object carries observed surface points (``SceneObject.surface``) and the
+ray meets them, the hit is on them (:mod:`.surface_rays`: what the camera measured, within a
+centimetre or two); elsewhere on the first box (primitives, slab method). Boxes that contain
+a ray's origin are ignored by that ray (a camera inside a loosely estimated box still sees
+what is in front of it). The floor is the plane ``z = floor_z`` seen from above; its hits
+report ``FLOOR_ID``, and no surface behind it counts.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from .scene_data import FLOOR_ID, ArScene, load_scene
+from .surface_rays import cast as surface_cast
 
 #: rays per chunk (bounds the (N, P) temporaries).
 _CHUNK = 2048
@@ -26,7 +30,7 @@ _TINY = np.float32(1e-20)  # |direction component| below this counts as parallel
 class RayHit:
     """First hit of one ray: ``distance`` (m) along the unit direction, the hit object's id
     (``FLOOR_ID`` = 0 for the floor), the outward unit ``normal`` (3,) and ``point`` (3,), world
-    frame; ``primitive_index`` into the object's primitives (-1: its box or the floor)."""
+    frame; ``primitive_index`` into the object's primitives (-1: its box, its observed surface or the floor)."""
 
     distance: float
     object_id: int
@@ -38,7 +42,7 @@ class RayHit:
 @dataclass
 class RayHits:
     """First hits of N rays: ``distance`` (N,) (inf: no hit), ``object_id`` (N,) (-1: no hit),
-    ``normal`` (N,3), ``box_index`` (N,) into ``scene.boxes`` (-1: floor or no hit)."""
+    ``normal`` (N,3), ``box_index`` (N,) into ``scene.boxes`` (-1: floor, observed surface or no hit)."""
 
     distance: np.ndarray
     object_id: np.ndarray
@@ -107,9 +111,10 @@ def _boxes_chunk(scene: ArScene, o: np.ndarray, d: np.ndarray, max_distance: flo
 
 
 def raycast_many(scene: ArScene | Any, origins: np.ndarray, directions: np.ndarray, max_distance: float = np.inf,
-                 floor: bool = True) -> RayHits:
+                 floor: bool = True, surfaces: bool = True) -> RayHits:
     """First hits of rays ``origins`` (N,3) + t ``directions`` (N,3) (either may be (3,)),
-    world frame, ``0 < t <= max_distance`` m; ``floor``: also hit the floor plane."""
+    world frame, ``0 < t <= max_distance`` m; ``floor``: also hit the floor plane;
+    ``surfaces``: land on the observed surfaces where the ray meets them (module doc)."""
     scene = load_scene(scene)
     o, d = _unit_rays(origins, directions)
     n = len(o)
@@ -126,20 +131,32 @@ def raycast_many(scene: ArScene | Any, origins: np.ndarray, directions: np.ndarr
             box[sl] = np.where(hit, bb, -1)
             oid[sl] = np.where(hit, scene.boxes.object_ids[bb], -1)
             normal[sl] = np.where(hit[:, None], nn, 0.0)
+    tf = np.full(n, np.inf)
     if floor:
         with np.errstate(divide="ignore", invalid="ignore"):
-            tf = (scene.floor_z - o[:, 2]) / d[:, 2]
-        f = (d[:, 2] < -_EPS) & (o[:, 2] > scene.floor_z) & (tf <= max_distance) & (tf < dist)
+            down = (d[:, 2] < -_EPS) & (o[:, 2] > scene.floor_z)
+            tf = np.where(down, (scene.floor_z - o[:, 2]) / np.where(down, d[:, 2], -1.0), np.inf)
+        tf = np.where(tf <= max_distance, tf, np.inf)
+        f = tf < dist
         dist[f], oid[f], box[f] = tf[f], FLOOR_ID, -1
         normal[f] = (0.0, 0.0, 1.0)
+    index = scene.surface_index if surfaces else None
+    if index is not None and n:
+        ok = np.all(np.isfinite(d), axis=1)
+        ts, sid, sn = surface_cast(index, o[ok], d[ok], np.minimum(tf[ok], max_distance))
+        s = np.flatnonzero(ok)[np.isfinite(ts)]
+        hit = np.isfinite(ts)
+        dist[s], oid[s], box[s], normal[s] = ts[hit], sid[hit], -1, sn[hit]
     return RayHits(dist, oid, normal, box)
 
 
 def raycast(scene: ArScene | Any, origin: np.ndarray, direction: np.ndarray, max_distance: float = np.inf,
-            floor: bool = True) -> RayHit | None:
-    """First hit of the ray ``origin`` (3,) + t ``direction`` (3,), world frame; None: no hit."""
+            floor: bool = True, surfaces: bool = True) -> RayHit | None:
+    """First hit of the ray ``origin`` (3,) + t ``direction`` (3,), world frame; None: no hit
+    (``primitive_index`` -1 on the floor, an object's own box or its observed surface)."""
     scene = load_scene(scene)
-    hits = raycast_many(scene, np.reshape(origin, (1, 3)), np.reshape(direction, (1, 3)), max_distance, floor)
+    hits = raycast_many(scene, np.reshape(origin, (1, 3)), np.reshape(direction, (1, 3)), max_distance, floor,
+                        surfaces)
     if not hits.hit[0]:
         return None
     _, d = _unit_rays(np.reshape(origin, (1, 3)), np.reshape(direction, (1, 3)))

@@ -62,12 +62,16 @@ def _as_object(o: Any) -> SceneObject:
         )
         for p in getattr(o, "primitives", []) or []
     ]
+    surface = getattr(o, "surface", None)
+    if surface is not None:
+        surface = np.asarray(surface, dtype=np.float64).reshape(-1, 3)
+        surface = surface[np.all(np.isfinite(surface), axis=1)]
     return SceneObject(
         id=int(o.id), class_name=str(o.class_name), score=float(getattr(o, "score", 1.0)),
         center=_arr(o.center, (3,), "object center"), size=np.abs(_arr(o.size, (3,), "object size")),
         rotation=_arr(o.rotation, (3, 3), "object rotation"), yaw=float(getattr(o, "yaw", 0.0)),
         observations=int(getattr(o, "observations", 1)), first_seen_ns=int(getattr(o, "first_seen_ns", 0)),
-        last_seen_ns=int(getattr(o, "last_seen_ns", 0)), primitives=prims,
+        last_seen_ns=int(getattr(o, "last_seen_ns", 0)), primitives=prims, surface=surface,
     )
 
 
@@ -97,6 +101,7 @@ class ArScene:
     frame_id: str = "odom"
     floor_z: float | None = None
     boxes: BoxSet = field(init=False)
+    _surfaces: Any = field(init=False, default=False, repr=False)
 
     def __post_init__(self) -> None:
         self.boxes = build_boxes(self.objects)
@@ -105,6 +110,17 @@ class ArScene:
                 self.floor_z = float(self.grid.floor_z)
             else:
                 self.floor_z = float(self.boxes.lo[:, 2].min()) if len(self.boxes) else 0.0
+
+    @property
+    def surface_index(self) -> Any:
+        """The objects' observed surface points arranged for ray casts
+        (:class:`~shape_detector.ar.surface_rays.SurfaceIndex`, built on first use), or None
+        when no object has any."""
+        if self._surfaces is False:
+            from .surface_rays import build_index
+
+            self._surfaces = build_index([(o.id, o.surface, o.rotation) for o in self.objects if o.surface is not None])
+        return self._surfaces
 
     def object(self, object_id: int) -> SceneObject | None:
         """The object with this track id, or None."""
@@ -144,9 +160,12 @@ def load_scene(source: Any) -> ArScene:
         except (KeyError, TypeError) as e:
             raise ValueError(f"scene JSON lacks or mistypes a field: {e}") from None
     if hasattr(source, "objects") and callable(source.objects):
+        from ..scene.map import SceneMap
+
         grid_fn = getattr(source, "grid", None)
         grid = _grid_of(grid_fn() if callable(grid_fn) else grid_fn)
-        return ArScene([_as_object(o) for o in source.objects()], grid, str(getattr(source, "frame_id", "odom")))
+        objects = source.objects(surfaces=True) if isinstance(source, SceneMap) else source.objects()
+        return ArScene([_as_object(o) for o in objects], grid, str(getattr(source, "frame_id", "odom")))
     if isinstance(source, (list, tuple)):
         return ArScene([_as_object(o) for o in source])
     raise ValueError(f"cannot read a scene from {type(source).__name__}")

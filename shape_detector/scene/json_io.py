@@ -6,7 +6,9 @@
      "objects": [{"id", "class", "score", "center": [x, y, z], "size": [l, w, h],
                   "rotation": [[3x3]] (columns = box axes, world), "yaw", "observations",
                   "first_seen_ns", "last_seen_ns",
-                  "primitives": [{"center": [3], "size": [3], "rotation": [[3x3]]}]}],
+                  "primitives": [{"center": [3], "size": [3], "rotation": [[3x3]]}],
+                  "surface" (optional): {"encoding": "base64-int16-mm-from-center", "count",
+                               "data": observed surface points, x y z int16 mm from "center"}}],
      "grid": {"resolution", "origin": [x, y], "width", "height", "floor_z",
               "encoding": "base64-int8", "data": base64 of the (height, width) int8 cells, row-major}}
 """

@@ -14,7 +14,8 @@ objects (camera optical frame: x right, y down, z forward), the pose ``T_world_c
    and are removed after ``delete_misses`` such frames; out-of-view or hidden tracks stay;
    tentative tracks not seen again within ``tentative_max_age`` frames are dropped;
 4. overlapping tracks merge (the older id stays);
-5. the floor seen in the depth is added to the grid (:mod:`.grid`).
+5. the floor seen in the depth is added to the grid (:mod:`.grid`), and the depth points
+   above it to the observed surfaces (:mod:`.surface`), which ray casts land on.
 
 A track is published (:meth:`objects`) once seen in ``confirm_observations`` frames.
 Without a pose (static camera) the world is the camera frame turned so that z is up
@@ -37,6 +38,7 @@ from ..types import Object3D
 from .association import associate, class_similarity, cost_matrix, duplicate_pairs, overlap
 from .grid import FloorMemory, NavGrid, build_grid, depth_points_world, estimate_floor_z, floor_cells_seen
 from .json_io import grid_from_dict, load_dict, scene_to_dict
+from .surface import SurfaceMemory, points_in_boxes
 from .observe import to_observation
 from .tracks import N_CLASSES, Observation, Track
 from .types import SceneObject, ScenePrimitive
@@ -87,6 +89,14 @@ class SceneConfig:
     #: floor within this radius of the camera's path counts as free (the camera, held by a person or
     #: carried by a robot, has passed there, though it rarely sees that floor); 0 = off
     camera_path_radius: float = 0.3
+    #: observed surfaces (for ray casts) are kept as the mean depth point per cube of this size; 0 = off
+    surface_voxel: float = 0.02
+    #: every n-th depth row and column feeds the observed surfaces
+    surface_stride: int = 8
+    #: an object's surface is the observed points inside its box grown by this much
+    surface_pad: float = 0.05
+    #: ... in voxels that this many depth points fell into (stray edge pixels seldom repeat)
+    surface_min_count: int = 2
     #: two tracks with a 3D IoU above this merge
     merge_iou: float = 0.4
     #: two tracks of agreeing class whose intersection over the smaller box is above this merge
@@ -121,6 +131,8 @@ class SceneMap:
         self._grid: NavGrid | None = None
         self._empty = EmptyParams()
         self.frames = 0
+        v = self.config.surface_voxel
+        self.surface: SurfaceMemory | None = SurfaceMemory(v) if v > 0 else None
 
     # -- public --------------------------------------------------------------------
     def update(self, objects: Sequence[Object3D], T_world_camera: np.ndarray | None, depth: np.ndarray | None,
@@ -140,14 +152,21 @@ class SceneMap:
         self._merge()
         if depth is not None:
             self.integrate_floor(T, depth, np.asarray(K, np.float64))
+            self.integrate_surface(T, depth, np.asarray(K, np.float64))
         if T_world_camera is not None and self.config.camera_path_radius > 0:
             # half-cell lattice: every cell the disc covers gets a point, wherever the cell lines fall
             self.floor.add(disc_points(T[:2, 3], self.config.camera_path_radius, 0.5 * self.config.grid_resolution))
         self._grid = None
 
-    def objects(self) -> list[SceneObject]:
-        """The confirmed tracks, sorted by id."""
-        return [self._published(t) for t in sorted(self.tracks, key=lambda t: t.id) if t.confirmed]
+    def objects(self, surfaces: bool = False) -> list[SceneObject]:
+        """The confirmed tracks, sorted by id; ``surfaces``: each with the observed surface
+        points inside its box (``SceneObject.surface``; costs a pass over the stored points)."""
+        out = [self._published(t) for t in sorted(self.tracks, key=lambda t: t.id) if t.confirmed]
+        if surfaces and self.surface is not None and out:
+            seen = self.surface.points()[self.surface.counts() >= self.config.surface_min_count]
+            for o, pts in zip(out, points_in_boxes(seen, out, self.config.surface_pad)):
+                o.surface = pts
+        return out
 
     def grid(self, inflate: bool = False) -> NavGrid:
         """The navigation grid (a copy; inflated by ``config.inflation_radius`` when ``inflate``)."""
@@ -173,7 +192,7 @@ class SceneMap:
 
     def to_json(self) -> dict[str, Any]:
         """The map as a JSON-ready dict (schema in :mod:`.json_io`)."""
-        return scene_to_dict(self.frame_id, self.stamp_ns, self.objects(), self.grid())
+        return scene_to_dict(self.frame_id, self.stamp_ns, self.objects(surfaces=True), self.grid())
 
     def save_json(self, path: str | Path) -> None:
         """Write :meth:`to_json` to ``path``."""
@@ -191,7 +210,10 @@ class SceneMap:
         m = cls(replace(config or SceneConfig(), world_frame=str(d["frame_id"])))
         m.stamp_ns = int(d.get("stamp_ns", 0))
         for o in d["objects"]:
-            m.tracks.append(_track_from_object(SceneObject.from_dict(o), m.config.max_weight))
+            obj = SceneObject.from_dict(o)
+            m.tracks.append(_track_from_object(obj, m.config.max_weight))
+            if obj.surface is not None and m.surface is not None:  # saved points passed the count test
+                m.surface.add(obj.surface, weight=max(1, m.config.surface_min_count))
         m._next_id = max([t.id for t in m.tracks], default=0) + 1
         if "grid" in d:
             g = grid_from_dict(d["grid"])
@@ -315,6 +337,15 @@ class SceneMap:
         near = pts[np.abs(pts[:, 2] - self.floor_z) <= c.floor_band, :2]
         self.floor.add(near)
         self.floor.add(floor_cells_seen(depth, K, T, self.floor_z, c.grid_resolution, near, c.floor_band))
+
+    def integrate_surface(self, T: np.ndarray, depth: np.ndarray, K: np.ndarray) -> None:
+        """Add the depth points above the floor (metres; ``K`` its intrinsics) seen from pose ``T``
+        to the observed surfaces."""
+        c = self.config
+        if self.surface is None:
+            return
+        pts = depth_points_world(depth, K, T, c.surface_stride, c.max_range)
+        self.surface.add(pts[pts[:, 2] > self.floor_z + c.floor_band])
 
     @staticmethod
     def _published(t: Track) -> SceneObject:

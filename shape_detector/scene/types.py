@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,14 +54,20 @@ class SceneObject:
     first_seen_ns: int = 0
     last_seen_ns: int = 0
     primitives: list[ScenePrimitive] = field(default_factory=list)
+    #: (M,3) observed surface points inside the box (voxel means of the depth, world frame), or
+    #: None when not asked for (see :mod:`shape_detector.scene.surface`)
+    surface: np.ndarray | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict:
-        """The JSON form (``"class"`` for ``class_name``)."""
-        return {"id": int(self.id), "class": self.class_name, "score": float(self.score),
-                "center": np.asarray(self.center, float).tolist(), "size": np.asarray(self.size, float).tolist(),
-                "rotation": np.asarray(self.rotation, float).tolist(), "yaw": float(self.yaw),
-                "observations": int(self.observations), "first_seen_ns": int(self.first_seen_ns),
-                "last_seen_ns": int(self.last_seen_ns), "primitives": [p.to_dict() for p in self.primitives]}
+        """The JSON form (``"class"`` for ``class_name``; ``"surface"`` only when there is one)."""
+        d = {"id": int(self.id), "class": self.class_name, "score": float(self.score),
+             "center": np.asarray(self.center, float).tolist(), "size": np.asarray(self.size, float).tolist(),
+             "rotation": np.asarray(self.rotation, float).tolist(), "yaw": float(self.yaw),
+             "observations": int(self.observations), "first_seen_ns": int(self.first_seen_ns),
+             "last_seen_ns": int(self.last_seen_ns), "primitives": [p.to_dict() for p in self.primitives]}
+        if self.surface is not None and len(self.surface):
+            d["surface"] = surface_to_dict(self.surface, self.center)
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> SceneObject:
@@ -70,4 +77,24 @@ class SceneObject:
                    rotation=np.asarray(d["rotation"], float).reshape(3, 3), yaw=float(d.get("yaw", 0.0)),
                    observations=int(d.get("observations", 1)), first_seen_ns=int(d.get("first_seen_ns", 0)),
                    last_seen_ns=int(d.get("last_seen_ns", 0)),
-                   primitives=[ScenePrimitive.from_dict(p) for p in d.get("primitives", [])])
+                   primitives=[ScenePrimitive.from_dict(p) for p in d.get("primitives", [])],
+                   surface=surface_from_dict(d["surface"], d["center"]) if d.get("surface") else None)
+
+
+def surface_to_dict(points: np.ndarray, center: np.ndarray) -> dict:
+    """The ``"surface"`` entry: points as millimetre offsets from the object's centre, int16
+    little-endian x y z per point, base64 (a room's surfaces in a few hundred kB)."""
+    mm = np.round((np.asarray(points, float).reshape(-1, 3) - np.asarray(center, float)) * 1000.0)
+    mm = np.clip(mm, -32767, 32767).astype("<i2")
+    return {"encoding": "base64-int16-mm-from-center", "count": int(len(mm)),
+            "data": base64.b64encode(mm.tobytes()).decode("ascii")}
+
+
+def surface_from_dict(d: dict, center) -> np.ndarray:
+    """(M,3) world points of a ``"surface"`` entry; ValueError on an unknown encoding or size."""
+    if d.get("encoding") != "base64-int16-mm-from-center":
+        raise ValueError(f"unknown surface encoding {d.get('encoding')!r}")
+    raw = np.frombuffer(base64.b64decode(d["data"]), dtype="<i2")
+    if raw.size != 3 * int(d.get("count", raw.size // 3)) or raw.size % 3:
+        raise ValueError(f"surface data holds {raw.size} values, expected 3 x {d.get('count')}")
+    return raw.reshape(-1, 3).astype(np.float64) / 1000.0 + np.asarray(center, float).reshape(3)

@@ -1,0 +1,109 @@
+"""Observed surfaces of the scene: depth points averaged into voxels, world frame (z up, metres).
+
+The detector's boxes and primitives are a few centimetres off; the depth the camera measured
+is not. :class:`SurfaceMemory` keeps the mean of the depth points that fall into each
+``voxel``-sized cube (one point per occupied voxel), over every frame, so that ray casts can
+land on the surface the camera saw (:mod:`shape_detector.ar.surface_rays`). What belongs to an
+object is decided when asked (:func:`points_in_boxes`), with the boxes of that moment, so
+points seen before a track was confirmed count too.
+
+Memory is bounded: beyond ``max_voxels`` the voxels seen by the fewest points are dropped.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+_BITS = 21  # per axis: +-2**20 voxels (+-21 km at 2 cm) packed into one int64 key
+_OFF = 1 << (_BITS - 1)
+_MASK = (1 << _BITS) - 1
+
+
+def voxel_keys(ijk: np.ndarray) -> np.ndarray:
+    """int64 keys of integer voxel coordinates ``ijk`` (N,3)."""
+    q = np.asarray(ijk, np.int64) + _OFF
+    return (q[:, 0] << (2 * _BITS)) | (q[:, 1] << _BITS) | q[:, 2]
+
+
+class SurfaceMemory:
+    """Voxel means of observed surface points (world frame, metres); see the module doc."""
+
+    def __init__(self, voxel: float = 0.02, max_voxels: int = 500_000) -> None:
+        if voxel <= 0:
+            raise ValueError(f"voxel must be > 0, got {voxel}")
+        self.voxel = float(voxel)
+        self.max_voxels = int(max_voxels)
+        self._keys = np.zeros(0, np.int64)
+        self._sums = np.zeros((0, 3))
+        self._counts = np.zeros(0, np.int64)
+        self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._pending_rows = 0
+
+    def __len__(self) -> int:
+        self._consolidate()
+        return int(self._keys.size)
+
+    def add(self, points: np.ndarray, weight: int = 1) -> None:
+        """Add world points (N,3); non-finite rows are ignored. ``weight``: how many
+        observations each point stands for (1 for depth samples)."""
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        p = p[np.all(np.isfinite(p), axis=1)]
+        if len(p) == 0:
+            return
+        keys, inv = np.unique(voxel_keys(np.floor(p / self.voxel)), return_inverse=True)
+        inv = inv.ravel()
+        sums = np.stack([np.bincount(inv, p[:, k], len(keys)) for k in range(3)], axis=1) * weight
+        counts = np.bincount(inv, minlength=len(keys)).astype(np.int64) * weight
+        self._pending.append((keys, sums, counts))
+        self._pending_rows += len(keys)
+        if self._pending_rows > max(50_000, self._keys.size // 2):
+            self._consolidate()  # amortised: a merge costs about as much as the rows it adds
+
+    def _consolidate(self) -> None:
+        if not self._pending:
+            return
+        keys = np.concatenate([self._keys] + [k for k, _, _ in self._pending])
+        sums = np.concatenate([self._sums] + [s for _, s, _ in self._pending])
+        counts = np.concatenate([self._counts] + [c for _, _, c in self._pending])
+        self._pending, self._pending_rows = [], 0
+        uk, inv = np.unique(keys, return_inverse=True)
+        inv = inv.ravel()
+        self._sums = np.stack([np.bincount(inv, sums[:, k], len(uk)) for k in range(3)], axis=1)
+        self._counts = np.bincount(inv, counts, len(uk)).astype(np.int64)
+        self._keys = uk
+        if uk.size > self.max_voxels:
+            keep = np.sort(np.argsort(-self._counts, kind="stable")[: self.max_voxels])
+            self._keys, self._sums, self._counts = self._keys[keep], self._sums[keep], self._counts[keep]
+
+    def points(self) -> np.ndarray:
+        """(M,3) the mean point of every occupied voxel, world frame."""
+        self._consolidate()
+        return self._sums / np.maximum(self._counts, 1)[:, None]
+
+    def counts(self) -> np.ndarray:
+        """(M,) how many points fell into each voxel (same order as :meth:`points`)."""
+        self._consolidate()
+        return self._counts.copy()
+
+
+def points_in_boxes(points: np.ndarray, boxes: Sequence[Any], pad: float = 0.05) -> list[np.ndarray]:
+    """For each box (``center`` (3,), ``size`` (3,), ``rotation`` (3,3) columns = axes, world
+    frame) the rows of ``points`` (M,3) inside it grown by ``pad`` m on every side; a point
+    inside several boxes goes to the first (the detector's boxes seldom overlap by more)."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    taken = np.zeros(len(p), bool)
+    out = []
+    for b in boxes:
+        R = np.asarray(b.rotation, np.float64)
+        half = 0.5 * np.abs(np.asarray(b.size, np.float64)) + pad
+        ext = np.abs(R) @ half  # world half extents of the grown box: a cheap pre-filter
+        c = np.asarray(b.center, np.float64)
+        near = np.flatnonzero(~taken & np.all(np.abs(p - c) <= ext, axis=1))
+        q = (p[near] - c) @ R
+        inside = near[np.all(np.abs(q) <= half, axis=1)]
+        taken[inside] = True
+        out.append(p[inside])
+    return out
