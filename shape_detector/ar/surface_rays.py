@@ -201,17 +201,17 @@ def _march(index: SurfaceIndex, o: np.ndarray, d: np.ndarray, k: np.ndarray, tin
     cells thick) (inf: never)."""
     h = index.cell
     steps = np.floor((tout - tin) / h).astype(np.int64) + 1
-    starts = np.concatenate([[0], np.cumsum(steps)[:-1]])
-    pair = np.repeat(np.arange(len(k)), steps)
-    j = (np.arange(len(pair)) - starts[pair]).astype(np.float32)
-    c0 = ((o + tin[:, None] * d) / h - index.lo[k]).astype(np.float32)  # cell coordinates, a step = d
-    c = (c0[pair] + j[:, None] * d[pair].astype(np.float32)).astype(np.int64)  # >= 0 inside: truncation = floor
-    sh = index.shape[k][pair]
-    inside = np.all((c >= 0) & (c < sh), axis=1) & (c0[pair] + j[:, None] * d[pair] >= 0).all(axis=1)
-    flat = index.offset[k][pair] + (c[:, 0] * sh[:, 1] + c[:, 1]) * sh[:, 2] + c[:, 2]
-    on = np.zeros(len(pair), bool)
+    starts = np.cumsum(steps) - steps
+    j = np.arange(int(steps.sum()), dtype=np.float32) - np.repeat(starts.astype(np.float32), steps)
+    c0 = ((o + tin[:, None] * d) / h - index.lo[k]).astype(np.float32)  # cell coordinates; a step adds d
+    c = np.floor(np.repeat(c0, steps, axis=0) + j[:, None] * np.repeat(d.astype(np.float32), steps, axis=0))
+    c = c.astype(np.int64)
+    sh = np.repeat(index.shape[k], steps, axis=0)
+    inside = np.all((c >= 0) & (c < sh), axis=1)
+    flat = np.repeat(index.offset[k], steps) + (c[:, 0] * sh[:, 1] + c[:, 1]) * sh[:, 2] + c[:, 2]
+    on = np.zeros(len(j), bool)
     on[inside] = index.shell[flat[inside]]
-    t = tin[pair] + h * j
+    t = np.repeat(tin, steps) + h * j
     return np.minimum.reduceat(np.where(on, t, np.inf), starts)
 
 
@@ -277,7 +277,7 @@ def _normals(index: SurfaceIndex, k: np.ndarray, hit: np.ndarray, d: np.ndarray)
     cnt = valid.sum(1)
     mean = (pts * valid[..., None]).sum(1) / np.maximum(cnt, 1)[:, None]
     q = (pts - mean[:, None]) * valid[..., None]
-    cov = np.einsum("nki,nkj->nij", q, q)
+    cov = np.matmul(q.transpose(0, 2, 1), q)
     _, vec = np.linalg.eigh(cov + 1e-12 * np.eye(3))
     nrm = vec[:, :, 0]
     nrm = np.where((cnt >= 3)[:, None], nrm, -d)
