@@ -33,7 +33,6 @@ class SurfaceIndex:
 
     cell: float
     points: np.ndarray  # (M, 3) world
-    owner: np.ndarray  # (M,) object id of each point
     lo: np.ndarray  # (K, 3) int: first cell of each object's grid
     shape: np.ndarray  # (K, 3) int: cells per axis
     offset: np.ndarray  # (K,) int: start of each grid in the flat arrays
@@ -62,7 +61,7 @@ def build_index(surfaces: Sequence[tuple[int, np.ndarray, np.ndarray]], cell: fl
     tube = 0.75 * cell if tube is None else float(tube)
     if not 0.0 < tube <= 0.85 * cell:
         raise ValueError(f"tube must be in (0, 0.85 cell], got {tube} for cell {cell}")
-    pts, own, los, shapes, offs, oids, pat, shells, frames, qlo, qhi = ([] for _ in range(11))
+    pts, los, shapes, offs, oids, pat, shells, frames, qlo, qhi = ([] for _ in range(10))
     start, total = 0, 0
     for oid, p, R in surfaces:
         p = np.asarray(p, np.float64).reshape(-1, 3)
@@ -82,7 +81,6 @@ def build_index(surfaces: Sequence[tuple[int, np.ndarray, np.ndarray]], cell: fl
         shells.append(ndimage.binary_dilation(occ, np.ones((3, 3, 3), bool)).ravel())
         pat.append(grid)
         pts.append(p)
-        own.append(np.full(len(p), int(oid), np.int64))
         los.append(lo)
         shapes.append(shape)
         offs.append(total)
@@ -98,7 +96,7 @@ def build_index(surfaces: Sequence[tuple[int, np.ndarray, np.ndarray]], cell: fl
         return None
     sh = np.array(shapes)
     around = (_NEIGHBOURS[None, :, 0] * sh[:, 1:2] + _NEIGHBOURS[None, :, 1]) * sh[:, 2:3] + _NEIGHBOURS[None, :, 2]
-    return SurfaceIndex(float(cell), np.concatenate(pts), np.concatenate(own), np.array(los), sh,
+    return SurfaceIndex(float(cell), np.concatenate(pts), np.array(los), sh,
                         np.array(offs, np.int64), np.array(oids, np.int64), np.concatenate(pat),
                         np.concatenate(shells), around, np.array(frames), np.array(qlo), np.array(qhi), tube, float(cluster))
 
@@ -110,15 +108,6 @@ def _cells(index: SurfaceIndex, k: np.ndarray, pos: np.ndarray, margin: int = 0)
     sh = index.shape[k]
     inside = np.all((c >= margin) & (c < sh - margin), axis=1)
     return index.offset[k] + (c[:, 0] * sh[:, 1] + c[:, 1]) * sh[:, 2] + c[:, 2], inside
-
-
-def _lookup(index: SurfaceIndex, k: np.ndarray, pos: np.ndarray, table: np.ndarray, fill):
-    """``table`` at the cells of world positions ``pos`` (n,3) in object grids ``k`` (n,);
-    ``fill`` outside the grids."""
-    flat, inside = _cells(index, k, pos)
-    out = np.full(len(pos), fill, dtype=table.dtype)
-    out[inside] = table[flat[inside]]
-    return out
 
 
 def _around(index: SurfaceIndex, k: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

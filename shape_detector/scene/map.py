@@ -38,8 +38,8 @@ from ..types import Object3D
 from .association import associate, class_similarity, cost_matrix, duplicate_pairs, overlap
 from .grid import FloorMemory, NavGrid, build_grid, depth_points_world, estimate_floor_z, floor_cells_seen
 from .json_io import grid_from_dict, load_dict, scene_to_dict
-from .surface import SurfaceMemory, points_in_boxes
 from .observe import to_observation
+from .surface import SurfaceMemory, points_in_boxes
 from .tracks import N_CLASSES, Observation, Track
 from .types import SceneObject, ScenePrimitive
 from .visibility import EmptyParams, seen_empty
