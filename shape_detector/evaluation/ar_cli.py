@@ -65,7 +65,7 @@ def main(args: argparse.Namespace) -> int:
     print(f"map: {'true scene (--gt-map)' if args.gt_map else 'detector + SceneMap'}, {len(rows)} walk-throughs")
     for k, thr in THRESHOLDS.items():
         print(f"  {k:>30}: {mean[k]:.3f}  (>= {thr:.2f}: {'pass' if mean[k] >= thr else 'FAIL'})")
-    for k in ("ray_floor_within_5cm", "ray_median_err_cm", "plan_min_clearance_cm",
+    for k in ("ray_floor_within_5cm", "ray_within_5cm_primitives", "ray_median_err_cm", "plan_min_clearance_cm",
               "plan_found_interior", "plan_clear_interior", "plan_min_clearance_cm_interior", "objects_true",
               "objects_map"):
         print(f"  {k:>30}: {mean[k]:.3f}")

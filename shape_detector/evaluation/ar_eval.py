@@ -8,7 +8,8 @@ as a check of this code, the true scene) and are scored against the room's true 
   true first hit is a labelled object's part (the issue's "true geometry"); rays first
   hitting a wall, door, window, unlabelled clutter or the floor are left out of it.
   ``ray_floor_within_5cm`` is the same share over the rays first hitting the floor inside
-  the room (the room's floor slab), reported beside it;
+  the room (the room's floor slab), reported beside it, and ``ray_within_5cm_primitives`` the
+  object rays' share without the observed surfaces (the primitives alone);
 * ``collide_precision`` / ``collide_recall`` -- ``collides`` (sphere of ``radius``) at random
   points within ``band`` of the parts of objects seen during the walk, against all true parts;
 * ``plan_found`` -- pairs of random floor points free for the agent in the true footprint
@@ -115,7 +116,9 @@ def ray_metric(truth: Truth, m: ArScene, cameras: list[tuple[np.ndarray, np.ndar
     err = np.abs(got.distance - true.distance[used])
     ok = err <= tol  # a miss (inf) never counts
     obj = on_obj[used]
+    bare = np.abs(raycast_many(m, o[used], d[used], surfaces=False).distance - true.distance[used]) <= tol
     return {"ray_within_5cm": float(ok[obj].mean()) if obj.any() else float("nan"),
+            "ray_within_5cm_primitives": float(bare[obj].mean()) if obj.any() else float("nan"),
             "ray_floor_within_5cm": float(ok[~obj].mean()) if (~obj).any() else float("nan"),
             "ray_median_err_cm": 100 * float(np.median(np.where(np.isfinite(err[obj]), err[obj], 1e3)))
             if obj.any() else 0.0,
