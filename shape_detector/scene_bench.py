@@ -4,8 +4,9 @@ A generated room with 20 pieces of furniture seen from a camera walking past the
 each frame gives the map the boxes in view with noise (no network runs). Prints the mean
 and 95th percentile of: the update without depth (association, fusion, merging), the full
 update with depth (plus negative evidence, the floor and the observed surfaces), the floor
-integration alone (the grid's depth part), the surface integration alone, building the grid
-and listing the objects with their observed surfaces (for JSON and ray casts) when asked.
+integration alone (the grid's depth part) without and with the observed surfaces, building
+the grid and listing the objects with their observed surfaces (for JSON and ray casts) when
+asked.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import time
 
 import numpy as np
 
-from .scene import SceneMap
+from .scene import SceneConfig, SceneMap
 from .synth.render import rasterize
 from .types import Object3D
 
@@ -75,8 +76,8 @@ def run(n_frames: int = 60, tracks: int = 20) -> dict[str, list[float]]:
     boxes = scene(tracks)
     data = list(frames(boxes, n_frames))
     times: dict[str, list[float]] = {"update_no_depth": [], "update_with_depth": [], "floor_integration": [],
-                                     "surface_integration": [], "grid_build": [], "objects_with_surfaces": []}
-    a, b, c = SceneMap(), SceneMap(), SceneMap()
+                                     "floor_and_surfaces": [], "grid_build": [], "objects_with_surfaces": []}
+    a, b, c, e = SceneMap(), SceneMap(), SceneMap(SceneConfig(surface_voxel=0.0)), SceneMap()
     for i, (T, depth, dets) in enumerate(data):
         t0 = time.perf_counter()
         a.update(dets, T, None, None, i)
@@ -85,7 +86,7 @@ def run(n_frames: int = 60, tracks: int = 20) -> dict[str, list[float]]:
         t2 = time.perf_counter()
         c.integrate_floor(T, depth, K)
         t3 = time.perf_counter()
-        c.integrate_surface(T, depth, K)
+        e.integrate_floor(T, depth, K)
         t4 = time.perf_counter()
         b.grid()
         t5 = time.perf_counter()

@@ -140,7 +140,7 @@ def test_surface_json_round_trip_to_the_millimetre(tmp_path) -> None:
 def test_scene_map_keeps_what_the_depth_saw_and_saves_it(tmp_path) -> None:
     T = pose(0.0, 0.0, 1.2, 0.0)
     chest = ((3.0, 0.0, 0.45), (0.5, 0.5, 0.9), 0.0)
-    m = SceneMap(SceneConfig(floor_z=0.0, surface_stride=2))  # the test frames are 160 x 120
+    m = SceneMap(SceneConfig(floor_z=0.0, depth_stride=2))  # the test frames are 160 x 120
     depth = render(room([chest]), T)
     for i in range(4):
         m.update([detection(*chest, T)], T, depth, K, stamp_ns=i)

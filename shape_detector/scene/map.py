@@ -82,7 +82,7 @@ class SceneConfig:
     floor_z: float | None = None
     #: depth points within this height of the floor mark free cells
     floor_band: float = 0.05
-    #: every n-th depth row and column is used for the floor
+    #: every n-th depth row and column is used for the floor and the observed surfaces
     depth_stride: int = 4
     #: depth points beyond this range are not used for the floor
     max_range: float = 6.0
@@ -91,10 +91,9 @@ class SceneConfig:
     camera_path_radius: float = 0.3
     #: observed surfaces (for ray casts) are kept as the mean depth point per cube of this size; 0 = off
     surface_voxel: float = 0.02
-    #: every n-th depth row and column feeds the observed surfaces
-    surface_stride: int = 8
-    #: an object's surface is the observed points inside its box grown by this much
-    surface_pad: float = 0.05
+    #: an object's surface is the observed points inside its box grown by this much (boxes are a few
+    #: centimetres off; what lies just beside them is mostly their own surface)
+    surface_pad: float = 0.1
     #: ... in voxels that this many depth points fell into (stray edge pixels seldom repeat)
     surface_min_count: int = 2
     #: two tracks with a 3D IoU above this merge
@@ -152,7 +151,6 @@ class SceneMap:
         self._merge()
         if depth is not None:
             self.integrate_floor(T, depth, np.asarray(K, np.float64))
-            self.integrate_surface(T, depth, np.asarray(K, np.float64))
         if T_world_camera is not None and self.config.camera_path_radius > 0:
             # half-cell lattice: every cell the disc covers gets a point, wherever the cell lines fall
             self.floor.add(disc_points(T[:2, 3], self.config.camera_path_radius, 0.5 * self.config.grid_resolution))
@@ -326,7 +324,8 @@ class SceneMap:
             self.tracks.remove(gone)
 
     def integrate_floor(self, T: np.ndarray, depth: np.ndarray, K: np.ndarray) -> None:
-        """Add the floor seen in ``depth`` (metres; ``K`` its intrinsics) from pose ``T`` to the grid."""
+        """Add the floor seen in ``depth`` (metres; ``K`` its intrinsics) from pose ``T`` to the
+        grid, and the depth points above it to the observed surfaces."""
         c = self.config
         pts = depth_points_world(depth, K, T, c.depth_stride, c.max_range)
         if c.floor_z is None:
@@ -337,15 +336,8 @@ class SceneMap:
         near = pts[np.abs(pts[:, 2] - self.floor_z) <= c.floor_band, :2]
         self.floor.add(near)
         self.floor.add(floor_cells_seen(depth, K, T, self.floor_z, c.grid_resolution, near, c.floor_band))
-
-    def integrate_surface(self, T: np.ndarray, depth: np.ndarray, K: np.ndarray) -> None:
-        """Add the depth points above the floor (metres; ``K`` its intrinsics) seen from pose ``T``
-        to the observed surfaces."""
-        c = self.config
-        if self.surface is None:
-            return
-        pts = depth_points_world(depth, K, T, c.surface_stride, c.max_range)
-        self.surface.add(pts[pts[:, 2] > self.floor_z + c.floor_band])
+        if self.surface is not None:
+            self.surface.add(pts[pts[:, 2] > self.floor_z + c.floor_band])
 
     @staticmethod
     def _published(t: Track) -> SceneObject:
