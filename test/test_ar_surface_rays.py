@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from ar_scenes import box_object, rotz
-from shape_detector.ar import load_scene, raycast, raycast_many
+from shape_detector.ar import SceneQueries, load_scene, raycast, raycast_many
 from shape_detector.ar.bench import face_points
 from shape_detector.ar.scene_data import ArScene
 from shape_detector.ar.surface_rays import build_index, cast
@@ -74,6 +74,10 @@ def test_ray_lands_on_the_observed_face_not_the_box() -> None:
     assert hit.primitive_index == -1
     box_only = raycast(scene, (3.0, 0.1, 0.6), (-1.0, 0.0, 0.0), surfaces=False)
     assert box_only.distance == pytest.approx(2.50, abs=1e-6)
+    q = SceneQueries(scene)
+    assert q.raycast((3.0, 0.1, 0.6), (-1.0, 0.0, 0.0)).distance == pytest.approx(2.60, abs=0.01)
+    assert q.raycast_many(np.array([[3.0, 0.1, 0.6]]), (-1.0, 0.0, 0.0), surfaces=False).distance[0] == \
+        pytest.approx(2.50, abs=1e-6)
 
 
 def test_noise_along_the_ray_averages_out() -> None:

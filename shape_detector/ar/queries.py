@@ -56,13 +56,17 @@ class SceneQueries:
         """Distinct (object_id, primitive_index) touched by spheres at ``points`` (N,3)."""
         return collision.contacts(self.scene, points, radius)
 
-    def raycast(self, origin: np.ndarray, direction: np.ndarray, max_distance: float = np.inf) -> RayHit | None:
-        """First hit of a world ray on furniture or the floor (object id 0), or None."""
-        return raycast(self.scene, origin, direction, max_distance)
+    def raycast(self, origin: np.ndarray, direction: np.ndarray, max_distance: float = np.inf,
+                surfaces: bool = True) -> RayHit | None:
+        """First hit of a world ray on furniture (its observed surface where the ray meets one,
+        else its primitives; ``surfaces=False``: the primitives only) or the floor (object id 0),
+        or None."""
+        return raycast(self.scene, origin, direction, max_distance, surfaces=surfaces)
 
-    def raycast_many(self, origins: np.ndarray, directions: np.ndarray, max_distance: float = np.inf) -> RayHits:
-        """First hits of N rays (arrays; distance inf = no hit)."""
-        return raycast_many(self.scene, origins, directions, max_distance)
+    def raycast_many(self, origins: np.ndarray, directions: np.ndarray, max_distance: float = np.inf,
+                     surfaces: bool = True) -> RayHits:
+        """First hits of N rays (arrays; distance inf = no hit); ``surfaces`` as :meth:`raycast`."""
+        return raycast_many(self.scene, origins, directions, max_distance, surfaces=surfaces)
 
     def graph(self, agent_radius: float, unknown: str = "blocked") -> planning.CellGraph:
         """The cached navigation graph for a disc of ``agent_radius`` m."""
