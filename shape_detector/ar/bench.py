@@ -87,7 +87,7 @@ def _median_ms(fn: Callable[[], object], repeats: int) -> float:
 def run(repeats: int = 20, seed: int = 0) -> dict[str, float]:
     """Median milliseconds of each benchmark (see module doc)."""
     scene = bench_scene(seed=seed)
-    bare = ArScene(scene.objects and [replace(o, surface=None) for o in scene.objects], scene.grid)
+    bare = ArScene([replace(o, surface=None) for o in scene.objects], scene.grid)
     rng = np.random.default_rng(seed + 1)
     owners = rng.integers(0, len(scene.objects), 10_000)
     centers = np.array([scene.objects[k].center for k in owners])

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from collections.abc import Sequence
 from typing import Any
@@ -100,8 +101,11 @@ class ArScene:
     grid: NavGrid | None = None
     frame_id: str = "odom"
     floor_z: float | None = None
+    #: observed surface points not yet split among the objects ((M,3) world points, the pad by which
+    #: an object's box is grown to claim them), as a live ``SceneMap`` hands them over; the split
+    #: waits for the first ray cast, which plans and collisions never pay for
+    observed: tuple[np.ndarray, float] | None = field(default=None, repr=False)
     boxes: BoxSet = field(init=False)
-    _surfaces: Any = field(init=False, default=False, repr=False)
 
     def __post_init__(self) -> None:
         self.boxes = build_boxes(self.objects)
@@ -111,16 +115,18 @@ class ArScene:
             else:
                 self.floor_z = float(self.boxes.lo[:, 2].min()) if len(self.boxes) else 0.0
 
-    @property
+    @cached_property
     def surface_index(self) -> Any:
-        """The objects' observed surface points arranged for ray casts
-        (:class:`~shape_detector.ar.surface_rays.SurfaceIndex`, built on first use), or None
-        when no object has any."""
-        if self._surfaces is False:
-            from .surface_rays import build_index
+        """The objects' observed surface points (``SceneObject.surface``, else their share of
+        ``observed``) arranged for ray casts (:class:`~shape_detector.ar.surface_rays.SurfaceIndex`,
+        built on first use), or None when there are none."""
+        from ..scene.surface import points_in_boxes
+        from .surface_rays import build_index
 
-            self._surfaces = build_index([(o.id, o.surface, o.rotation) for o in self.objects if o.surface is not None])
-        return self._surfaces
+        surfaces = [o.surface for o in self.objects]
+        if self.observed is not None and all(s is None for s in surfaces) and self.objects:
+            surfaces = points_in_boxes(self.observed[0], self.objects, self.observed[1])
+        return build_index([(o.id, s, o.rotation) for o, s in zip(self.objects, surfaces) if s is not None])
 
     def object(self, object_id: int) -> SceneObject | None:
         """The object with this track id, or None."""
@@ -164,8 +170,11 @@ def load_scene(source: Any) -> ArScene:
 
         grid_fn = getattr(source, "grid", None)
         grid = _grid_of(grid_fn() if callable(grid_fn) else grid_fn)
-        objects = source.objects(surfaces=True) if isinstance(source, SceneMap) else source.objects()
-        return ArScene([_as_object(o) for o in objects], grid, str(getattr(source, "frame_id", "odom")))
+        observed = None
+        if isinstance(source, SceneMap) and (pts := source.surface_points()) is not None:
+            observed = (pts, float(source.config.surface_pad))
+        return ArScene([_as_object(o) for o in source.objects()], grid, str(getattr(source, "frame_id", "odom")),
+                       observed=observed)
     if isinstance(source, (list, tuple)):
         return ArScene([_as_object(o) for o in source])
     raise ValueError(f"cannot read a scene from {type(source).__name__}")

@@ -160,11 +160,17 @@ class SceneMap:
         """The confirmed tracks, sorted by id; ``surfaces``: each with the observed surface
         points inside its box (``SceneObject.surface``; costs a pass over the stored points)."""
         out = [self._published(t) for t in sorted(self.tracks, key=lambda t: t.id) if t.confirmed]
-        if surfaces and self.surface is not None and out:
-            seen = self.surface.points()[self.surface.counts() >= self.config.surface_min_count]
+        seen = self.surface_points() if surfaces and out else None
+        if seen is not None:
             for o, pts in zip(out, points_in_boxes(seen, out, self.config.surface_pad)):
                 o.surface = pts
         return out
+
+    def surface_points(self) -> np.ndarray | None:
+        """(M,3) the observed surface points (voxel means seen ``surface_min_count`` times, world
+        frame), not yet split among the objects (that takes :meth:`objects` with ``surfaces``);
+        None when the map keeps none (``surface_voxel`` 0)."""
+        return None if self.surface is None else self.surface.points(self.config.surface_min_count)
 
     def grid(self, inflate: bool = False) -> NavGrid:
         """The navigation grid (a copy; inflated by ``config.inflation_radius`` when ``inflate``)."""

@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from ..geometry import points_in_box
+
 _BITS = 21  # per axis: +-2**20 voxels (+-21 km at 2 cm) packed into one int64 key
 _OFF = 1 << (_BITS - 1)
 _MASK = (1 << _BITS) - 1
@@ -78,10 +80,11 @@ class SurfaceMemory:
             keep = np.sort(np.argsort(-self._counts, kind="stable")[: self.max_voxels])
             self._keys, self._sums, self._counts = self._keys[keep], self._sums[keep], self._counts[keep]
 
-    def points(self) -> np.ndarray:
-        """(M,3) the mean point of every occupied voxel, world frame."""
+    def points(self, min_count: int = 1) -> np.ndarray:
+        """(M,3) the mean point of every voxel that at least ``min_count`` points fell into, world frame."""
         self._consolidate()
-        return self._sums / np.maximum(self._counts, 1)[:, None]
+        seen = self._counts >= min_count
+        return self._sums[seen] / self._counts[seen, None]
 
     def counts(self) -> np.ndarray:
         """(M,) how many points fell into each voxel (same order as :meth:`points`)."""
@@ -98,12 +101,9 @@ def points_in_boxes(points: np.ndarray, boxes: Sequence[Any], pad: float = 0.05)
     out = []
     for b in boxes:
         R = np.asarray(b.rotation, np.float64)
-        half = 0.5 * np.abs(np.asarray(b.size, np.float64)) + pad
-        ext = np.abs(R) @ half  # world half extents of the grown box: a cheap pre-filter
-        c = np.asarray(b.center, np.float64)
-        near = np.flatnonzero(~taken & np.all(np.abs(p - c) <= ext, axis=1))
-        q = (p[near] - c) @ R
-        inside = near[np.all(np.abs(q) <= half, axis=1)]
+        ext = np.abs(R) @ (0.5 * np.abs(np.asarray(b.size, np.float64)) + pad)  # world half extents: a cheap pre-filter
+        near = np.flatnonzero(~taken & np.all(np.abs(p - np.asarray(b.center, np.float64)) <= ext, axis=1))
+        inside = near[points_in_box(p[near], b.center, np.abs(np.asarray(b.size, np.float64)), R, pad)]
         taken[inside] = True
         out.append(p[inside])
     return out
