@@ -21,7 +21,7 @@ setup(
     # ROS packages (rclpy, *_msgs) come from apt on a ROS install or from the
     # requirements-ros.txt wheels in a venv; torch must be pinned before this install.
     install_requires=["numpy>=1.24", "opencv-python-headless>=4.8", "rosbags>=0.10", "mcap>=1.1", "torch>=2.1",
-                      "onnxruntime>=1.17", "scipy>=1.10", "trimesh>=4.0"],
+                      "onnxruntime>=1.17", "scipy>=1.10", "trimesh>=4.0", "numba>=0.59"],
     zip_safe=True,
     maintainer="shape_detector maintainers",
     maintainer_email="maintainers@shape-detector.invalid",

@@ -105,12 +105,13 @@ def test_the_floor_hides_what_lies_below_it_and_rays_pass_beside_points() -> Non
     assert beside is not None and beside.distance == pytest.approx(2.50, abs=1e-6)  # beside the face: its box
 
 
-def test_index_matches_a_brute_force_tube() -> None:
+@pytest.mark.parametrize("cluster", [0.03, 0.12])
+def test_index_matches_a_brute_force_tube(cluster: float) -> None:
     rng = np.random.default_rng(5)
     parts = [ScenePrimitive(rng.uniform(-0.4, 0.4, 3) + [0, 0, 0.5], rng.uniform(0.05, 0.6, 3), rotz(rng.uniform(-3, 3)))
              for _ in range(6)]
     pts = face_points(parts)
-    index = build_index([(1, pts, np.eye(3))])
+    index = build_index([(1, pts, np.eye(3))], cluster=cluster)
     o = rng.uniform([2.0, -1.0, 0.2], [3.0, 1.0, 1.5], (300, 3))
     d = pts[rng.integers(0, len(pts), 300)] + rng.normal(0.0, 0.03, (300, 3)) - o
     d /= np.linalg.norm(d, axis=1, keepdims=True)

@@ -18,7 +18,6 @@ from typing import Any
 import numpy as np
 
 from .scene_data import FLOOR_ID, ArScene, load_scene
-from .surface_rays import cast as surface_cast
 
 #: rays per chunk (bounds the (N, P) temporaries).
 _CHUNK = 2048
@@ -142,6 +141,8 @@ def raycast_many(scene: ArScene | Any, origins: np.ndarray, directions: np.ndarr
         normal[f] = (0.0, 0.0, 1.0)
     index = scene.surface_index if surfaces else None
     if index is not None and n:
+        from .surface_rays import cast as surface_cast  # compiled on first use: a node that never casts skips numba
+
         ok = np.all(np.isfinite(d), axis=1)
         ts, sid, sn = surface_cast(index, o[ok], d[ok], np.minimum(tf[ok], max_distance))
         s = np.flatnonzero(ok)[np.isfinite(ts)]

@@ -5,12 +5,15 @@ means from :class:`shape_detector.scene.surface.SurfaceMemory`). A ray's surface
 it first passes within ``tube`` of such points: the median distance along the ray of the
 points in the first ``cluster`` metres of that tube (noise along the ray averages out).
 
-To stay vectorised and fast, each object's points go into a world-aligned grid of ``cell``-
-sized cells holding one point each (the points are voxel means on a lattice of that size).
-A ray first marches through a copy of the occupancy grown by one cell, in steps of one cell,
-and only where it meets that shell are the points of the 3 x 3 x 3 cells around a few steps
-tested against the tube. Normals come from the points around the hit (smallest principal
-axis, facing the ray).
+Each object's points go into a world-aligned grid of ``cell``-sized cells holding one point
+each (the points are voxel means on a lattice of that size). A ray visits the objects whose
+points' box (in the object's own axes) it crosses, nearest first, and marches through a copy
+of the occupancy grown by one cell, in steps of one cell; only where it meets that shell are
+the points of the 3 x 3 x 3 cells around a few steps tested against the tube. Normals come
+from the points around the hit (smallest principal axis, facing the ray).
+
+The per-ray loop is compiled with numba (cached on disk after the first call): a ray's march
+stops at its first surface, which array code cannot do without many small passes.
 """
 
 from __future__ import annotations
@@ -18,12 +21,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy import ndimage
 
 #: objects whose surface grid would exceed this many cells are left to their primitives
 MAX_CELLS = 8_000_000
-_NEIGHBOURS = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), -1).reshape(-1, 3)
 _PASSES = 6  # shells met without a surface in the tube, before a ray gives up on a grid
 
 
@@ -39,7 +42,6 @@ class SurfaceIndex:
     object_ids: np.ndarray  # (K,)
     point_at: np.ndarray  # flat int32: point index of each cell, -1 empty
     shell: np.ndarray  # flat bool: occupancy grown by one cell
-    around: np.ndarray  # (K, 27) int: flat offsets of a cell's 3 x 3 x 3 neighbourhood in each grid
     frames: np.ndarray  # (K, 3, 3) columns = the axes of each object's box (world)
     qlo: np.ndarray  # (K, 3) its points' extent along those axes, grown by two cells
     qhi: np.ndarray
@@ -95,179 +97,188 @@ def build_index(surfaces: Sequence[tuple[int, np.ndarray, np.ndarray]], cell: fl
     if not pts:
         return None
     sh = np.array(shapes)
-    around = (_NEIGHBOURS[None, :, 0] * sh[:, 1:2] + _NEIGHBOURS[None, :, 1]) * sh[:, 2:3] + _NEIGHBOURS[None, :, 2]
     return SurfaceIndex(float(cell), np.concatenate(pts), np.array(los), sh,
                         np.array(offs, np.int64), np.array(oids, np.int64), np.concatenate(pat),
-                        np.concatenate(shells), around, np.array(frames), np.array(qlo), np.array(qhi), tube, float(cluster))
+                        np.concatenate(shells), np.array(frames), np.array(qlo), np.array(qhi), tube, float(cluster))
 
 
-def _cells(index: SurfaceIndex, k: np.ndarray, pos: np.ndarray, margin: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Flat indices of the cells of world positions ``pos`` (n,3) in object grids ``k`` (n,),
-    and whether each lies at least ``margin`` cells inside its grid."""
-    c = np.floor(pos / index.cell).astype(np.int64) - index.lo[k]
-    sh = index.shape[k]
-    inside = np.all((c >= margin) & (c < sh - margin), axis=1)
-    return index.offset[k] + (c[:, 0] * sh[:, 1] + c[:, 1]) * sh[:, 2] + c[:, 2], inside
-
-
-def _around(index: SurfaceIndex, k: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(row, point index) of the points in the 3 x 3 x 3 cells around each of ``pos`` (n,3)
-    in grids ``k``; positions on a grid's outer cell have no points around (the margin)."""
-    flat, inside = _cells(index, k, pos, margin=1)
-    rows = np.flatnonzero(inside)
-    idx = index.point_at[flat[rows, None] + index.around[k[rows]]]
-    has = idx >= 0
-    return np.broadcast_to(rows[:, None], idx.shape)[has], idx[has]
+def _window(index: SurfaceIndex) -> np.ndarray:
+    """Steps (m) relative to where a ray met the grown occupancy whose tube points are tested."""
+    return np.arange(-index.cell, index.cluster + 2 * index.cell + 1e-9, index.cell)
 
 
 def cast(index: SurfaceIndex, o: np.ndarray, d: np.ndarray, limit: np.ndarray, t_min: float = 0.05) \
         -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Surface hits of rays ``o`` (n,3) + t ``d`` (n,3, unit) with ``t_min < t <= limit`` (n,):
+    """Surface hits of rays ``o`` (n,3) + t ``d`` (n,3, unit, finite) with ``t_min < t <= limit`` (n,):
     distance (n,) (inf: none), object id (n,) (-1: none), unit normal (n,3) facing the ray."""
     n = len(o)
-    dist, oid, normal = np.full(n, np.inf), np.full(n, -1, np.int64), np.zeros((n, 3))
-    h = index.cell
-    # rays x objects: the slab test against each object's points' box (its own axes)
-    ol = np.einsum("ni,kij->nkj", o, index.frames)
-    dl = np.einsum("ni,kij->nkj", d, index.frames)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / np.where(np.abs(dl) < 1e-12, 1e-12, dl)
-        t1 = (index.qlo[None] - ol) * inv
-        t2 = (index.qhi[None] - ol) * inv
-    tin = np.maximum(np.minimum(t1, t2).max(axis=2), t_min)
-    tout = np.minimum(np.maximum(t1, t2).min(axis=2), (limit + h)[:, None])
-    r, k = np.nonzero((tin <= tout) & np.isfinite(tin))
-    if len(r) == 0:
-        return dist, oid, normal
-    tin, tout = tin[r, k], tout[r, k]
-    # nearest grid first: a ray whose surface is found skips the grids it enters beyond it
-    order = np.lexsort((tin, r))
-    r, k, tin, tout = r[order], k[order], tin[order], tout[order]
-    starts = np.flatnonzero(np.r_[True, r[1:] != r[:-1]])
-    rank = np.arange(len(r)) - np.repeat(starts, np.diff(np.r_[starts, len(r)]))
-    best_k = np.full(n, -1, np.int64)
-    for level in range(int(rank.max()) + 1):
-        sel = np.flatnonzero(rank == level)
-        sel = sel[tin[sel] < dist[r[sel]]]
-        if len(sel) == 0:
-            break  # tin grows with rank: every later grid lies beyond a found surface
-        rs = r[sel]
-        est = _pair_hits(index, o[rs], d[rs], k[sel], tin[sel], np.minimum(tout[sel], dist[rs]), limit[rs], t_min)
-        better = est < dist[rs]
-        dist[rs[better]], best_k[rs[better]] = est[better], k[sel][better]
-    rays = np.flatnonzero(best_k >= 0)
-    oid[rays] = index.object_ids[best_k[rays]]
-    normal[rays] = _normals(index, best_k[rays], o[rays] + dist[rays, None] * d[rays], d[rays])
+    dist, best_k, normal = np.full(n, np.inf), np.full(n, -1, np.int64), np.zeros((n, 3))
+    window = _window(index)
+    _cast_rays(np.ascontiguousarray(o, np.float64), np.ascontiguousarray(d, np.float64),
+               np.ascontiguousarray(limit, np.float64), float(t_min), index.cell, index.frames, index.qlo, index.qhi,
+               index.lo, index.shape, index.offset, index.point_at, index.shell, index.points, index.tube,
+               index.cluster, float(window[0]), len(window), _PASSES, dist, best_k, normal)
+    oid = np.where(best_k >= 0, index.object_ids[np.maximum(best_k, 0)], -1)
     return dist, oid, normal
 
 
-def _pair_hits(index: SurfaceIndex, o: np.ndarray, d: np.ndarray, k: np.ndarray, tin: np.ndarray, tout: np.ndarray,
-               limit: np.ndarray, t_min: float) -> np.ndarray:
-    """Surface distance of each ray in object grid ``k`` between ``tin`` and ``tout`` (inf: none)."""
-    est = np.full(len(k), np.inf)
-    todo = np.arange(len(k))
-    tin = tin.copy()
-    for _ in range(_PASSES):  # a shell met without points in the tube: march on past it
-        if len(todo) == 0:
-            break
-        first = _march(index, o[todo], d[todo], k[todo], tin[todo], tout[todo])
-        met = np.isfinite(first)
-        todo, first = todo[met], first[met]
-        if len(todo) == 0:
-            break
-        est[todo] = _tube_hit(index, o[todo], d[todo], k[todo], first, limit[todo], t_min)
-        miss = ~np.isfinite(est[todo])
-        todo, first = todo[miss], first[miss]
-        tin[todo] = first + _window(index)[-1]  # where the tested window ended
-        todo = todo[tin[todo] <= tout[todo]]
-    return est
+@numba.njit(cache=True, nogil=True)
+def _cast_rays(o, d, limit, t_min, h, frames, qlo, qhi, lo, shape, offset, point_at, shell, points, tube,
+               cluster, w0, n_window, passes, dist, best_k, normal):
+    """``cast`` for every ray: writes ``dist``, ``best_k`` (grid index) and ``normal`` in place."""
+    n_grids = frames.shape[0]
+    tin = np.empty(n_grids)
+    tout = np.empty(n_grids)
+    grids = np.empty(n_grids, np.int64)
+    n_again = int(np.ceil(cluster / h)) + 1  # steps from the nearest point that hold its cluster
+    buf_t = np.empty(27 * (n_window + n_again))  # a ray's tube points in one grid
+    buf_i = np.empty(27 * (n_window + n_again), np.int64)
+    w_end = w0 + (n_window - 1) * h
+    for i in range(o.shape[0]):
+        oi, di = o[i], d[i]
+        m = _grids_crossed(oi, di, t_min, limit[i] + h, frames, qlo, qhi, tin, tout, grids)
+        best, bk = np.inf, -1
+        for p in range(m):
+            if tin[p] >= best:
+                break  # the grids come nearest first: the rest lie beyond the surface found
+            k = grids[p]
+            t, te = tin[p], min(tout[p], best)
+            for _ in range(passes):  # a shell met without points in the tube: march on past it
+                first = _march(oi, di, k, t, te, h, lo, shape, offset, shell)
+                if first == np.inf:
+                    break
+                nb = _tube(oi, di, k, first + w0, n_window, h, lo, shape, offset, point_at, points, tube, t_min,
+                           limit[i] + h, buf_t, buf_i, 0)
+                if nb == 0:
+                    t = first + w_end
+                    if t > te:
+                        break
+                    continue
+                t0 = buf_t[:nb].min()  # the nearest point in the tube: the window holds all before it
+                if t0 + cluster > first + w_end + 0.5 * h - 1e-9:  # the window ends half a cell past its last step
+                    nb = _tube(oi, di, k, t0, n_again, h, lo, shape, offset, point_at, points, tube, t_min, limit[i] + h,
+                               buf_t, buf_i, nb)
+                cnt = 0
+                for q in range(nb):
+                    if t0 - 1e-9 <= buf_t[q] <= t0 + cluster:
+                        buf_t[cnt] = buf_t[q]
+                        cnt += 1
+                near = np.sort(buf_t[:cnt])
+                est = 0.5 * (near[(cnt - 1) // 2] + near[cnt // 2])
+                if est < best:
+                    best, bk = est, k
+                break
+        dist[i] = best
+        best_k[i] = bk
+        if bk >= 0:
+            _normal(oi + best * di, di, bk, h, lo, shape, offset, point_at, points, normal[i])
 
 
-def _march(index: SurfaceIndex, o: np.ndarray, d: np.ndarray, k: np.ndarray, tin: np.ndarray, tout: np.ndarray) \
-        -> np.ndarray:
-    """Phase 1: the first distance in ``[tin, tout]`` (per ray / object grid pair) where each
-    ray meets the grown occupancy of grid ``k``, in steps of a cell (the grown shell is three
-    cells thick) (inf: never)."""
-    h = index.cell
-    steps = np.floor((tout - tin) / h).astype(np.int64) + 1
-    starts = np.cumsum(steps) - steps
-    j = np.arange(int(steps.sum()), dtype=np.float32) - np.repeat(starts.astype(np.float32), steps)
-    c0 = ((o + tin[:, None] * d) / h - index.lo[k]).astype(np.float32)  # cell coordinates; a step adds d
-    c = np.floor(np.repeat(c0, steps, axis=0) + j[:, None] * np.repeat(d.astype(np.float32), steps, axis=0))
-    c = c.astype(np.int64)
-    sh = np.repeat(index.shape[k], steps, axis=0)
-    inside = np.all((c >= 0) & (c < sh), axis=1)
-    flat = np.repeat(index.offset[k], steps) + (c[:, 0] * sh[:, 1] + c[:, 1]) * sh[:, 2] + c[:, 2]
-    on = np.zeros(len(j), bool)
-    on[inside] = index.shell[flat[inside]]
-    t = np.repeat(tin, steps) + h * j
-    return np.minimum.reduceat(np.where(on, t, np.inf), starts)
+@numba.njit(cache=True, nogil=True)
+def _grids_crossed(o, d, t_lo, t_hi, frames, qlo, qhi, tin, tout, grids):
+    """Slab test against each grid's points' box in its own axes: the grids the ray crosses
+    within ``[t_lo, t_hi]``, written to ``tin`` / ``tout`` / ``grids`` sorted by entry; their count."""
+    m = 0
+    for k in range(frames.shape[0]):
+        a_in, a_out = t_lo, t_hi
+        for a in range(3):
+            ol = o[0] * frames[k, 0, a] + o[1] * frames[k, 1, a] + o[2] * frames[k, 2, a]
+            dl = d[0] * frames[k, 0, a] + d[1] * frames[k, 1, a] + d[2] * frames[k, 2, a]
+            if abs(dl) < 1e-12:
+                if ol < qlo[k, a] or ol > qhi[k, a]:
+                    a_in = np.inf
+                    break
+                continue
+            t1, t2 = (qlo[k, a] - ol) / dl, (qhi[k, a] - ol) / dl
+            a_in, a_out = max(a_in, min(t1, t2)), min(a_out, max(t1, t2))
+        if a_in > a_out:
+            continue
+        j = m
+        while j > 0 and tin[j - 1] > a_in:  # insertion: a ray crosses a few grids
+            tin[j], tout[j], grids[j] = tin[j - 1], tout[j - 1], grids[j - 1]
+            j -= 1
+        tin[j], tout[j], grids[j] = a_in, a_out, k
+        m += 1
+    return m
 
 
-def _window(index: SurfaceIndex) -> np.ndarray:
-    """Phase-2 steps (m) relative to where a ray met the grown occupancy."""
-    return np.arange(-index.cell, index.cluster + 2 * index.cell + 1e-9, index.cell)
+@numba.njit(cache=True, nogil=True)
+def _cell(o, d, t, h, lo, k):
+    """Cell coordinates in grid ``k`` of the point ``o + t d``."""
+    return (int(np.floor((o[0] + t * d[0]) / h)) - lo[k, 0], int(np.floor((o[1] + t * d[1]) / h)) - lo[k, 1],
+            int(np.floor((o[2] + t * d[2]) / h)) - lo[k, 2])
 
 
-def _tube_points(index: SurfaceIndex, o: np.ndarray, d: np.ndarray, k: np.ndarray, steps: np.ndarray,
-                 limit: np.ndarray, t_min: float) -> tuple[np.ndarray, np.ndarray]:
-    """(ray row, distance along the ray) of the distinct points of grids ``k`` within the tube of
-    each ray near its ``steps`` (n, s) (m along the ray), sorted by row then distance.
+@numba.njit(cache=True, nogil=True)
+def _march(o, d, k, t, te, h, lo, shape, offset, shell):
+    """The first step ``t + j h <= te`` where the ray is in the grown occupancy of grid ``k``
+    (the shell is three cells thick, so one-cell steps cannot jump it); inf: none."""
+    s0, s1, s2 = shape[k, 0], shape[k, 1], shape[k, 2]
+    for j in range(int(np.floor((te - t) / h)) + 1):
+        c0, c1, c2 = _cell(o, d, t + j * h, h, lo, k)
+        if 0 <= c0 < s0 and 0 <= c1 < s1 and 0 <= c2 < s2 and shell[offset[k] + (c0 * s1 + c1) * s2 + c2]:
+            return t + j * h
+    return np.inf
+
+
+@numba.njit(cache=True, nogil=True)
+def _tube(o, d, k, t, n_steps, h, lo, shape, offset, point_at, points, tube, t_min, t_max, buf_t, buf_i,
+          nb):
+    """Adds to ``buf_t`` / ``buf_i`` (``nb`` used) the distance along the ray and index of the
+    distinct points of grid ``k`` within ``tube`` of the ray, ``t_min < distance <= t_max``,
+    near the steps ``t + j h``; returns the new count.
 
     Steps a cell apart suffice: one lies within half a cell of the ray's nearest approach to a
     point in the tube, so (tube <= 0.85 cell) within one cell of the point along every axis."""
-    pw = np.repeat(np.arange(len(k)), steps.shape[1])
-    rows, idx = _around(index, k[pw], o[pw] + steps.reshape(-1, 1) * d[pw])
-    pp = pw[rows]
-    v = index.points[idx] - o[pp]
-    tc = np.einsum("ij,ij->i", v, d[pp])
-    perp2 = np.einsum("ij,ij->i", v, v) - tc * tc
-    ok = (perp2 <= index.tube ** 2) & (tc > t_min) & (tc <= limit[pp] + index.cell)
-    pp, tc, idx = pp[ok], tc[ok], idx[ok]
-    order = np.lexsort((idx, tc, pp))
-    pp, tc, idx = pp[order], tc[order], idx[order]
-    once = np.r_[True, (pp[1:] != pp[:-1]) | (idx[1:] != idx[:-1])][: len(pp)]  # a point seen from two steps
-    return pp[once], tc[once]
+    s0, s1, s2 = shape[k, 0], shape[k, 1], shape[k, 2]
+    for j in range(n_steps):
+        c0, c1, c2 = _cell(o, d, t + j * h, h, lo, k)
+        if not (1 <= c0 < s0 - 1 and 1 <= c1 < s1 - 1 and 1 <= c2 < s2 - 1):
+            continue  # a grid's outer cells hold no points, nor do their neighbours beyond
+        for a in range(-1, 2):
+            for b in range(-1, 2):
+                row = offset[k] + ((c0 + a) * s1 + c1 + b) * s2 + c2
+                for c in range(-1, 2):
+                    idx = point_at[row + c]
+                    if idx < 0:
+                        continue
+                    v0, v1, v2 = points[idx, 0] - o[0], points[idx, 1] - o[1], points[idx, 2] - o[2]
+                    tc = v0 * d[0] + v1 * d[1] + v2 * d[2]
+                    if v0 * v0 + v1 * v1 + v2 * v2 - tc * tc > tube * tube or tc <= t_min or tc > t_max:
+                        continue
+                    seen = False
+                    for q in range(nb):
+                        if buf_i[q] == idx:
+                            seen = True
+                            break
+                    if not seen:
+                        buf_t[nb], buf_i[nb] = tc, idx
+                        nb += 1
+    return nb
 
 
-def _tube_hit(index: SurfaceIndex, o: np.ndarray, d: np.ndarray, k: np.ndarray, first: np.ndarray,
-              limit: np.ndarray, t_min: float) -> np.ndarray:
-    """Phase 2: from where each ray met the grown occupancy (``first``), the median distance
-    of the points of grid ``k`` in its tube within ``cluster`` of the nearest one (inf: none)."""
-    h = index.cell
-    out = np.full(len(k), np.inf)
-    pp, tc = _tube_points(index, o, d, k, first[:, None] + _window(index)[None], limit, t_min)
-    if len(pp) == 0:
-        return out
-    gstart = np.flatnonzero(np.r_[True, pp[1:] != pp[:-1]])
-    near, t0 = pp[gstart], tc[gstart]  # the nearest point in the tube: the window holds all before it
-    # the cluster behind it may reach past the window: gather it from the nearest point on
-    pp, tc = _tube_points(index, o[near], d[near], k[near], t0[:, None] + h * np.arange(3.0)[None], limit[near],
-                          t_min)
-    keep = tc >= t0[pp] - 1e-9
-    pp, tc = pp[keep], tc[keep]
-    gstart = np.flatnonzero(np.r_[True, pp[1:] != pp[:-1]])
-    gid = np.repeat(np.arange(len(gstart)), np.diff(np.r_[gstart, len(pp)]))
-    inside = tc <= t0[pp] + index.cluster  # contiguous at each group's start
-    count = np.bincount(gid[inside], minlength=len(gstart))
-    out[near[pp[gstart]]] = 0.5 * (tc[gstart + (count - 1) // 2] + tc[gstart + count // 2])
-    return out
-
-
-def _normals(index: SurfaceIndex, k: np.ndarray, hit: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """Unit normals (n,3) at world points ``hit`` on object grids ``k``: the smallest principal
-    axis of the points in the 3 x 3 x 3 cells around each (``-d`` with fewer than 3), facing ``-d``."""
-    n = len(hit)
-    flat, inside = _cells(index, k, hit, margin=1)
-    idx = np.full((n, len(_NEIGHBOURS)), -1, np.int64)
-    idx[inside] = index.point_at[flat[inside, None] + index.around[k[inside]]]
-    valid = idx >= 0
-    pts = index.points[np.where(valid, idx, 0)]
-    cnt = valid.sum(1)
-    mean = (pts * valid[..., None]).sum(1) / np.maximum(cnt, 1)[:, None]
-    q = (pts - mean[:, None]) * valid[..., None]
-    cov = np.matmul(q.transpose(0, 2, 1), q)
-    _, vec = np.linalg.eigh(cov + 1e-12 * np.eye(3))
-    nrm = vec[:, :, 0]
-    nrm = np.where((cnt >= 3)[:, None], nrm, -d)
-    return nrm * np.where(np.einsum("ij,ij->i", nrm, d) > 0, -1.0, 1.0)[:, None]
+@numba.njit(cache=True, nogil=True)
+def _normal(hit, d, k, h, lo, shape, offset, point_at, points, out):
+    """Writes to ``out`` the unit normal at ``hit`` on grid ``k``: the smallest principal axis of
+    the points in the 3 x 3 x 3 cells around it (``-d`` with fewer than 3), facing ``-d``."""
+    s0, s1, s2 = shape[k, 0], shape[k, 1], shape[k, 2]
+    c0, c1, c2 = _cell(hit, d, 0.0, h, lo, k)
+    out[:] = -d
+    if not (1 <= c0 < s0 - 1 and 1 <= c1 < s1 - 1 and 1 <= c2 < s2 - 1):
+        return
+    near = np.empty((27, 3))
+    cnt = 0
+    for a in range(-1, 2):
+        for b in range(-1, 2):
+            for c in range(-1, 2):
+                idx = point_at[offset[k] + ((c0 + a) * s1 + c1 + b) * s2 + c2 + c]
+                if idx >= 0:
+                    near[cnt] = points[idx]
+                    cnt += 1
+    if cnt < 3:
+        return
+    q = near[:cnt] - near[:cnt].sum(axis=0) / cnt
+    _, vec = np.linalg.eigh(q.T @ q + 1e-12 * np.eye(3))
+    out[:] = vec[:, 0]
+    if out[0] * d[0] + out[1] * d[1] + out[2] * d[2] > 0:
+        out[:] = -vec[:, 0]
