@@ -54,7 +54,8 @@ class DetectorConfig:
     mirror_tta: str = setting("never", "also run each frustum mirrored and merge: given (external boxes only), "
                               "always or never", choices=("given", "always", "never"))
     precision: str = setting("auto", "network arithmetic: auto (onnxruntime: int8 for the class-agnostic "
-                             "first pass, whose boxes are never published, fp32 for the rest; torch: bfloat16 "
+                             "first pass, whose boxes are never published, and for given 2D boxes with their class, "
+                             "fp32 for the class-given second pass; torch: bfloat16 "
                              "for 4+ frustums on CPUs with AMX, else fp32), fp32, bf16 (torch), or int8 "
                              "(onnxruntime: every pass's box and shape PointNets in int8, a quarter less network "
                              "time, accuracy in the model card)", choices=PRECISIONS)

@@ -57,7 +57,8 @@ def test_second_pass_runs_the_predicted_class_given(scene):
     pred = det.predictor
     first = pred.predict(prep.frustums, [None] * len(prep.frustums))
     second = pred.refine(prep.frustums, first, min_score=0.0)
-    given = pred.predict(prep.frustums, [CLASS_TO_ID[p.class_name] for p in first])
+    # (second=True: the second pass's arithmetic; under `auto` given boxes run in int8)
+    given = pred.predict(prep.frustums, [CLASS_TO_ID[p.class_name] for p in first], second=True)
     for f, s, g in zip(first, second, given):
         assert s.class_name == f.class_name
         np.testing.assert_array_equal(s.class_probs, f.class_probs)  # the class is the first pass's

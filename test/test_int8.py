@@ -32,16 +32,23 @@ def predictors():
             FrustumPredictor(backend="onnxruntime", precision="int8"))
 
 
-def test_auto_runs_only_the_class_agnostic_first_pass_in_int8(predictors):
-    f, _ = predictors
+def test_auto_runs_the_unpublished_first_pass_and_given_boxes_in_int8(predictors):
+    f, q = predictors
     a = FrustumPredictor(backend="onnxruntime", precision="auto")
-    assert a.int8_graphs == ("frustum_box",) and f.int8_graphs == ()
+    assert a.int8_graphs == ("frustum_box", "frustum_head") and f.int8_graphs == ()
     frs, cls = _real_frustums(2)
-    # class-given (the second pass, given boxes): the float32 head graph, as fp32
-    for p, r in zip(f.predict(frs, cls), a.predict(frs, cls)):
-        np.testing.assert_allclose(p.center, r.center, atol=1e-5)
-        np.testing.assert_allclose(p.size, r.size, atol=1e-5)
-        assert p.primitives and len(p.primitives) == len(r.primitives)
+
+    def same(ps, rs) -> None:
+        for p, r in zip(ps, rs):
+            np.testing.assert_allclose(p.center, r.center, atol=1e-5)
+            np.testing.assert_allclose(p.size, r.size, atol=1e-5)
+            assert p.primitives and len(p.primitives) == len(r.primitives)
+
+    # given boxes with their class: the int8 head graph, as precision int8
+    same(q.predict(frs, cls), a.predict(frs, cls))
+    # the class-given second pass and a class-agnostic pass whose boxes are published: float32
+    same(f.predict(frs, cls, second=True), a.predict(frs, cls, second=True))
+    same(f.predict(frs), a.predict(frs))
     # class-agnostic without shapes (a first pass the second replaces): the int8 box graph
     first_f, first_a = f.predict(frs, shapes=False), a.predict(frs, shapes=False)
     dc = [np.linalg.norm(p.center - r.center) for p, r in zip(first_f, first_a)]

@@ -232,19 +232,19 @@ def test_bf16_precision_runs_and_stays_close(weights):
 
 
 def test_auto_precision_uses_bf16_for_large_batches_on_amx_cpus(weights, monkeypatch):
-    import shape_detector.model.predictor as predictor_module
+    import shape_detector.model.devices as devices
 
     frame = make_frame(5, 3)
     frs = [extract_frustum(frame.rgb, frame.depth, frame.K, o.box2d, 512, up=frame.up,
                            rng=np.random.default_rng(i)) for i, o in enumerate(frame.objects)]
-    pts = np.stack([f.points for f in frs] * 3)[: predictor_module.AUTO_BF16_MIN_BATCH]
+    pts = np.stack([f.points for f in frs] * 3)[: devices.AUTO_BF16_MIN_BATCH]
     oh = np.zeros((len(pts), len(CLASSES)), np.float32)
     fp = FrustumPredictor(weights, device="cpu", num_threads=1, backend="torch")
     bf = FrustumPredictor(weights, device="cpu", num_threads=1, precision="bf16", backend="torch")
     for amx in (True, False):
-        monkeypatch.setattr(predictor_module, "cpu_has_amx", lambda amx=amx: amx)
+        monkeypatch.setattr(devices, "cpu_has_amx", lambda amx=amx: amx)
         auto = FrustumPredictor(weights, device="cpu", num_threads=1, precision="auto", backend="torch")
-        assert auto.bf16_min_batch == (predictor_module.AUTO_BF16_MIN_BATCH if amx else None)
+        assert auto.bf16_min_batch == (devices.AUTO_BF16_MIN_BATCH if amx else None)
         big = auto.forward_arrays(pts, oh)["center"]
         small = auto.forward_arrays(pts[:1], oh[:1])["center"]
         # large batches: the bf16 forward on an AMX CPU, fp32 elsewhere; one frustum: fp32

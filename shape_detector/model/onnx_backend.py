@@ -106,11 +106,13 @@ class OrtFrustumForward:
     <shape_detector.model.predictor.FrustumPredictor.forward_arrays>` (numpy; ``seg_glob`` /
     ``seg_local`` included; ``shapes=False``: without the shape branch, primitives zeros).
     ``folder`` holds ``frustum_seg.onnx`` / ``frustum_head.onnx`` / ``frustum_box.onnx``
-    (``int8``: the names of those to take in their ``.int8.onnx`` versions instead).
+    (``int8``: the names of those to take in their ``.int8.onnx`` versions instead;
+    ``fp32_head``: keep the float32 head too, for the passes that ask for it).
     Sessions are thread-safe: chunks of a batch may run on several Python threads (the GIL
     is released while a graph runs)."""
 
-    def __init__(self, folder: str | Path, threads: int = 1, device: str = "cpu", int8: tuple[str, ...] = ()) -> None:
+    def __init__(self, folder: str | Path, threads: int = 1, device: str = "cpu", int8: tuple[str, ...] = (),
+                 fp32_head: bool = False) -> None:
         folder = Path(folder)
         files = dict(GRAPH_FILES)
         if int8:  # these graphs' int8 versions (built by .onnx_quantize.int8_graphs)
@@ -120,6 +122,8 @@ class OrtFrustumForward:
         self.seg = make_session(folder / files["frustum_seg"], threads, device)
         self.head = make_session(folder / files["frustum_head"], threads, device)
         self.box = make_session(folder / files["frustum_box"], threads, device)
+        self.head_fp32 = (make_session(folder / GRAPH_FILES["frustum_head"], threads, device)
+                          if fp32_head and "frustum_head" in int8 else self.head)
 
     def __call__(
         self,
@@ -127,15 +131,17 @@ class OrtFrustumForward:
         one_hot: np.ndarray,
         seg_cache: tuple[np.ndarray, np.ndarray] | None = None,
         shapes: bool = True,
+        fp32: bool = False,
     ) -> dict[str, np.ndarray]:
         """Run the graphs on ``points`` (B, N, C) float32 (frame F, m) and ``one_hot`` (B, num_classes);
-        ``seg_cache``: the ``(seg_glob, seg_local)`` of an earlier pass on the same points."""
+        ``seg_cache``: the ``(seg_glob, seg_local)`` of an earlier pass on the same points;
+        ``fp32``: the head in float32 (where it was kept)."""
         pts = np.ascontiguousarray(points, np.float32)
         if seg_cache is None:
             glob, local = self.seg.run(None, {"points": pts})
         else:
             glob, local = (np.ascontiguousarray(_numpy(t), np.float32) for t in seg_cache)
-        graph = self.head if shapes else self.box
+        graph = (self.head_fp32 if fp32 else self.head) if shapes else self.box
         outs = graph.run(None, {"points": pts, "one_hot": np.ascontiguousarray(one_hot, np.float32),
                                 "seg_glob": glob, "seg_local": local})
         res = dict(zip(HEAD_OUTPUTS, outs))

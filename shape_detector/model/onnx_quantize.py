@@ -1,9 +1,12 @@
 """int8 versions of the frustum network's box and head graphs.
 
-Which graphs run in int8 follows the ``precision`` setting (:func:`quantized_graphs`):
-``"int8"``: both; ``"auto"``: only ``frustum_box``, the class-agnostic first pass whose
-boxes rank and deduplicate built-in proposals but are never published (the class-given
-second pass, in float32, replaces every box that is); ``"fp32"``: none.
+Which passes run in int8 follows the ``precision`` setting (:func:`quantized_passes`):
+``"int8"``: all; ``"auto"``: the class-agnostic first pass over built-in proposals
+(``frustum_box``: its boxes rank and deduplicate proposals but are never published) and the
+pass over given 2D boxes whose class came with them (``frustum_head``), but not the
+class-given second pass over built-in proposals, nor a class-agnostic pass whose boxes are
+published; ``"fp32"``: none. (int8 moved the given-box rows by at most 0.5 points, the
+second pass's by 0.7-0.9 points at mAP@0.5: docs/model_card.md.)
 
 ONNX Runtime's dynamic quantisation: the weights of the selected matrix products are stored
 as int8 (per output channel), their inputs quantised to uint8 per batch at run time. Only the
@@ -43,9 +46,20 @@ SEGMENTATION_TAG = "seg_"
 INT8_VERSION = 1
 
 
+#: the passes whose shape head can run in int8: over given 2D boxes with their class, the
+#: class-given second pass over built-in proposals, a class-agnostic pass whose boxes are published
+HEAD_PASSES = ("given", "second", "agnostic")
+
+
+def quantized_passes(precision: str) -> frozenset[str]:
+    """The :data:`HEAD_PASSES` whose head runs in int8 under ``precision`` (module docstring;
+    the never-published first pass, ``frustum_box``, runs in int8 under both)."""
+    return frozenset({"int8": HEAD_PASSES, "auto": ("given",)}.get(precision, ()))
+
+
 def quantized_graphs(precision: str) -> tuple[str, ...]:
-    """The graphs that run in int8 under ``precision`` (module docstring)."""
-    return {"int8": INT8_GRAPHS, "auto": ("frustum_box",)}.get(precision, ())
+    """The graphs whose int8 versions run under ``precision`` (module docstring)."""
+    return INT8_GRAPHS if precision in ("int8", "auto") else ()
 
 
 def int8_file(name: str) -> str:

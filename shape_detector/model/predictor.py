@@ -31,8 +31,9 @@ from ..geometry import rot_z, wrap_angle
 from ..types import Cuboid
 from .config import PRECISIONS, ModelConfig
 from .batching import MIRROR_CONFLICT, concat as _concat, merge_mirrored, repeat_first as _repeat_first, stack as _stack
+from .devices import AUTO_BF16_MIN_BATCH, bf16_min_batch, cpu_has_amx, resolve_device  # noqa: F401 - re-exported
 from .onnx_backend import resolve_backend
-from .onnx_quantize import int8_graphs, quantized_graphs
+from .onnx_quantize import HEAD_PASSES, int8_graphs, quantized_graphs, quantized_passes
 from .prediction import FrustumPrediction, refined_score
 
 if TYPE_CHECKING:
@@ -43,43 +44,6 @@ if TYPE_CHECKING:
     from .onnx_backend import OrtFrustumForward
 
 BACKGROUND = "background"
-
-#: ``precision="auto"``: batches of at least this many frustums run in bfloat16 on CPUs with
-#: AMX, smaller ones in fp32 (bf16 has a fixed cost that only larger batches earn back)
-AUTO_BF16_MIN_BATCH = 4
-
-
-def bf16_min_batch(precision: str, device: Any) -> int | None:
-    """The batch size from which a forward runs in bfloat16 under ``precision``: None =
-    never (``"fp32"``, or ``"auto"`` on a device without AMX), 0 = always (``"bf16"``),
-    :data:`AUTO_BF16_MIN_BATCH` for ``"auto"`` on a CPU with AMX."""
-    if precision not in PRECISIONS:
-        raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
-    if precision == "bf16":
-        return 0
-    if precision == "auto" and getattr(device, "type", str(device)) == "cpu" and cpu_has_amx():
-        return AUTO_BF16_MIN_BATCH
-    return None
-
-
-def cpu_has_amx() -> bool:
-    """Whether this CPU has AMX tiles (bfloat16 matrix units); False when torch cannot tell."""
-    try:
-        import torch
-
-        return bool(torch.cpu._is_amx_tile_supported())
-    except Exception:  # noqa: BLE001 - a private torch helper: absent means unknown
-        return False
-
-
-def resolve_device(device: str | torch.device | None) -> torch.device:
-    """``"auto"``/None -> cuda when available else cpu; otherwise ``torch.device(device)``."""
-    import torch
-
-    if device is None or str(device) == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(device)
-
 
 def default_weights_path() -> Path:
     """The packaged weights ``shape_detector/weights/default.pt`` (may not exist); as
@@ -109,8 +73,8 @@ class FrustumPredictor:
     faster on CPUs with AMX / AVX512-BF16 for large batches, much slower on those without)
     or ``"auto"`` (bf16 for batches of at least :data:`AUTO_BF16_MIN_BATCH` frustums on a CPU
     with AMX, else fp32); onnxruntime runs fp32, with ``"int8"`` the box and shape
-    PointNets' wide layers in int8, with ``"auto"`` those of the class-agnostic first pass
-    only (its boxes are never published; :mod:`.onnx_quantize`). Torch runs ``"int8"`` as fp32.
+    PointNets' wide layers in int8, with ``"auto"`` those of some passes
+    (:func:`.onnx_quantize.quantized_passes`). Torch runs ``"int8"`` as fp32.
     ``trace`` (torch, CPU): frozen TorchScript graphs (:mod:`.traced`); False = eager (and
     ``backend="auto"`` then means torch).
     """
@@ -206,7 +170,8 @@ class FrustumPredictor:
                 warnings.warn(f"precision {self.precision} cannot build its int8 graphs ({e}); running float32",
                               stacklevel=3)
                 self.precision, int8 = "fp32", ()
-        self._ort = OrtFrustumForward(folder, int(self.num_threads or 1), self.device, int8=int8)
+        self._ort = OrtFrustumForward(folder, int(self.num_threads or 1), self.device, int8=int8,
+                                      fp32_head=quantized_passes(self.precision) != frozenset(HEAD_PASSES))
 
     @property
     def int8_graphs(self) -> tuple[str, ...]:
@@ -278,6 +243,7 @@ class FrustumPredictor:
         seg_cache: tuple[Any, Any] | None = None,
         keep_features: bool = False,
         shapes: bool = True,
+        fp32: bool = False,
     ) -> dict[str, np.ndarray]:
         """Raw batched forward on (B,N,6) points / (B,C) one-hot; decoded frame-F arrays.
 
@@ -285,10 +251,11 @@ class FrustumPredictor:
         (the segmentation PointNet is skipped); ``keep_features`` adds them to the result
         (numpy arrays under onnxruntime, torch tensors under torch). ``shapes=False`` lets
         onnxruntime skip the shape branch (the primitives are then meaningless; torch
-        computes them anyway).
+        computes them anyway). ``fp32``: onnxruntime runs the shape head in float32 whatever
+        the precision's int8 graphs.
         """
         if self._ort is not None:
-            out = self._ort(points, one_hot, seg_cache, shapes)
+            out = self._ort(points, one_hot, seg_cache, shapes, fp32)
             if not keep_features:
                 out.pop("seg_glob"), out.pop("seg_local")
             return out
@@ -318,6 +285,7 @@ class FrustumPredictor:
         keep_features: bool = False,
         seg_features: Sequence[tuple[Any, Any] | None] | None = None,
         shapes: bool = True,
+        second: bool = False,
     ) -> list[FrustumPrediction]:
         """Predictions for ``frustums`` (class ids: index into CLASSES, or None = unknown).
 
@@ -329,7 +297,8 @@ class FrustumPredictor:
         earlier pass over the same frustums, one per frustum (used where a whole
         same-size group has them, without mirror: that group skips the segmentation PointNet).
         ``shapes=False``: no primitives (empty lists; the shape branch is skipped where the
-        runtime can), for a pass whose primitives a later pass replaces.
+        runtime can), for a pass whose primitives a later pass replaces. ``second``: the
+        class-given second pass (:meth:`refine`), for the precision's choice of int8 passes.
         """
         n = len(frustums)
         if class_ids is None:
@@ -346,7 +315,10 @@ class FrustumPredictor:
         if seg_features is not None and len(seg_features) != n:
             raise ValueError("seg_features must match frustums")
         keep = keep_features and not mirror
+        int8 = quantized_passes(self.precision) if self._ort is not None else frozenset()
         for _, idx in groups.items():
+            role = "second" if second else "given" if all(class_ids[i] is not None for i in idx) else "agnostic"
+            fp32 = role not in int8
             pts = np.stack([frustums[i].points[:, :6] for i in idx]).astype(np.float32)
             oh = np.zeros((len(idx), nc), np.float32)
             for j, i in enumerate(idx):
@@ -359,9 +331,9 @@ class FrustumPredictor:
                 flipped = pts.copy()
                 flipped[..., 0] *= -1.0
                 arr = merge_mirrored(self._forward_parallel(np.concatenate([pts, flipped]), np.concatenate([oh, oh]),
-                                                            shapes=shapes))
+                                                            shapes=shapes, fp32=fp32))
             else:
-                arr = self._forward_parallel(pts, oh, cache, keep, shapes)
+                arr = self._forward_parallel(pts, oh, cache, keep, shapes, fp32)
             for j, p in enumerate(self._decode([frustums[i] for i in idx], [class_ids[i] for i in idx], arr, shapes)):
                 results[idx[j]] = p
                 if keep:
@@ -401,6 +373,7 @@ class FrustumPredictor:
             [CLASS_TO_ID[first[i].class_name] for i in idx],
             mirror,
             seg_features=[first[i].seg_features for i in idx],
+            second=True,
         )
         for i, q in zip(idx, second):
             p = first[i]
@@ -414,12 +387,13 @@ class FrustumPredictor:
         seg_cache: tuple[Any, Any] | None = None,
         keep_features: bool = False,
         shapes: bool = True,
+        fp32: bool = False,
     ) -> dict[str, Any]:
         """:meth:`forward_arrays`, split over ``self.workers`` threads for large batches."""
         n = pts.shape[0]
         k = min(self.workers, n // self.min_chunk)
         if k <= 1:
-            return self.forward_arrays(pts, oh, seg_cache, keep_features, shapes)
+            return self.forward_arrays(pts, oh, seg_cache, keep_features, shapes, fp32)
         pool = self._pool
         if pool is None:
             from concurrent.futures import ThreadPoolExecutor
@@ -434,6 +408,7 @@ class FrustumPredictor:
                 None if seg_cache is None else (seg_cache[0][a:b], seg_cache[1][a:b]),
                 keep_features,
                 shapes,
+                fp32,
             )
             for a, b in zip(bounds[:-1], bounds[1:])
         ]
