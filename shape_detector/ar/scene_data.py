@@ -121,12 +121,16 @@ class ArScene:
         ``observed``) arranged for ray casts (:class:`~shape_detector.ar.surface_rays.SurfaceIndex`,
         built on first use), or None when there are none."""
         from ..scene.surface import points_in_boxes
-        from .surface_rays import build_index
 
         surfaces = [o.surface for o in self.objects]
         if self.observed is not None and all(s is None for s in surfaces) and self.objects:
             surfaces = points_in_boxes(self.observed[0], self.objects, self.observed[1])
-        return build_index([(o.id, s, o.rotation) for o, s in zip(self.objects, surfaces) if s is not None])
+        given = [(o.id, s, o.rotation) for o, s in zip(self.objects, surfaces) if s is not None and len(s)]
+        if not given:
+            return None  # without importing numba
+        from .surface_rays import build_index
+
+        return build_index(given)
 
     def object(self, object_id: int) -> SceneObject | None:
         """The object with this track id, or None."""

@@ -154,7 +154,9 @@ def _cast_rays(o, d, limit, t_min, h, frames, qlo, qhi, lo, shape, offset, point
                     if t > te:
                         break
                     continue
-                t0 = buf_t[:nb].min()  # the nearest point in the tube: the window holds all before it
+                t0 = buf_t[0]  # the nearest point in the tube: the window holds all before it
+                for q in range(1, nb):
+                    t0 = min(t0, buf_t[q])
                 if t0 + cluster > first + w_end + 0.5 * h - 1e-9:  # the window ends half a cell past its last step
                     nb = _tube(oi, di, k, t0, n_again, h, lo, shape, offset, point_at, points, tube, t_min, limit[i] + h,
                                buf_t, buf_i, nb)
@@ -163,8 +165,8 @@ def _cast_rays(o, d, limit, t_min, h, frames, qlo, qhi, lo, shape, offset, point
                     if t0 - 1e-9 <= buf_t[q] <= t0 + cluster:
                         buf_t[cnt] = buf_t[q]
                         cnt += 1
-                near = np.sort(buf_t[:cnt])
-                est = 0.5 * (near[(cnt - 1) // 2] + near[cnt // 2])
+                _sort_head(buf_t, cnt)
+                est = 0.5 * (buf_t[(cnt - 1) // 2] + buf_t[cnt // 2])
                 if est < best:
                     best, bk = est, k
                 break
@@ -172,6 +174,17 @@ def _cast_rays(o, d, limit, t_min, h, frames, qlo, qhi, lo, shape, offset, point
         best_k[i] = bk
         if bk >= 0:
             _normal(oi + best * di, di, bk, h, lo, shape, offset, point_at, points, normal[i])
+
+
+@numba.njit(cache=True, nogil=True)
+def _sort_head(a, n):
+    """Sorts ``a[:n]`` in place (insertion: a ray's cluster holds a few points)."""
+    for i in range(1, n):
+        v, j = a[i], i
+        while j > 0 and a[j - 1] > v:
+            a[j] = a[j - 1]
+            j -= 1
+        a[j] = v
 
 
 @numba.njit(cache=True, nogil=True)
@@ -260,25 +273,35 @@ def _tube(o, d, k, t, n_steps, h, lo, shape, offset, point_at, points, tube, t_m
 @numba.njit(cache=True, nogil=True)
 def _normal(hit, d, k, h, lo, shape, offset, point_at, points, out):
     """Writes to ``out`` the unit normal at ``hit`` on grid ``k``: the smallest principal axis of
-    the points in the 3 x 3 x 3 cells around it (``-d`` with fewer than 3), facing ``-d``."""
+    the points in the 3 x 3 x 3 cells around it (``-d`` with fewer than 3), facing ``-d``.
+    Scalar loops only: numba takes seconds to compile array slicing and axis reductions."""
     s0, s1, s2 = shape[k, 0], shape[k, 1], shape[k, 2]
     c0, c1, c2 = _cell(hit, d, 0.0, h, lo, k)
-    out[:] = -d
+    for a in range(3):
+        out[a] = -d[a]
     if not (1 <= c0 < s0 - 1 and 1 <= c1 < s1 - 1 and 1 <= c2 < s2 - 1):
         return
-    near = np.empty((27, 3))
     cnt = 0
+    first = np.zeros(3)  # sums of the points' offsets from the hit
+    second = np.zeros((3, 3))
     for a in range(-1, 2):
         for b in range(-1, 2):
             for c in range(-1, 2):
                 idx = point_at[offset[k] + ((c0 + a) * s1 + c1 + b) * s2 + c2 + c]
-                if idx >= 0:
-                    near[cnt] = points[idx]
-                    cnt += 1
+                if idx < 0:
+                    continue
+                cnt += 1
+                for i in range(3):
+                    first[i] += points[idx, i] - hit[i]
+                    for j in range(3):
+                        second[i, j] += (points[idx, i] - hit[i]) * (points[idx, j] - hit[j])
     if cnt < 3:
         return
-    q = near[:cnt] - near[:cnt].sum(axis=0) / cnt
-    _, vec = np.linalg.eigh(q.T @ q + 1e-12 * np.eye(3))
-    out[:] = vec[:, 0]
-    if out[0] * d[0] + out[1] * d[1] + out[2] * d[2] > 0:
-        out[:] = -vec[:, 0]
+    cov = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            cov[i, j] = second[i, j] - first[i] * first[j] / cnt + (1e-12 if i == j else 0.0)
+    _, vec = np.linalg.eigh(cov)
+    flip = vec[0, 0] * d[0] + vec[1, 0] * d[1] + vec[2, 0] * d[2] > 0
+    for i in range(3):
+        out[i] = -vec[i, 0] if flip else vec[i, 0]
