@@ -19,10 +19,7 @@ import numpy as np
 
 from .scene_data import FLOOR_ID, ArScene, load_scene
 
-#: rays per chunk (bounds the (N, P) temporaries).
-_CHUNK = 2048
 _EPS = 1e-12
-_TINY = np.float32(1e-20)  # |direction component| below this counts as parallel
 
 
 @dataclass
@@ -70,45 +67,6 @@ def _unit_rays(origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray,
     return o, d
 
 
-def _boxes_chunk(scene: ArScene, o: np.ndarray, d: np.ndarray, max_distance: float):
-    """Slab test of n rays against all P boxes, one box axis at a time on (n, P) arrays, in
-    float32 (micrometre resolution over a room, half the memory traffic)."""
-    b = scene.boxes
-    n, P = len(o), len(b)
-    ref = b.centers.mean(axis=0)  # subtract a scene point in float64 before rounding to float32
-    o, d = (o - ref).astype(np.float32), d.astype(np.float32)
-    rot, half, centers = b.rot.astype(np.float32), b.half.astype(np.float32), (b.centers - ref).astype(np.float32)
-    tnear = np.full((n, P), -np.inf, np.float32)
-    tfar = np.full((n, P), np.inf, np.float32)
-    axis = np.zeros((n, P), np.int8)
-    dls = []
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for k in range(3):
-            Rk = np.ascontiguousarray(rot[:, :, k].T)  # (3, P): box axis k of every box
-            # elementwise rather than matmul: BLAS threads cost more than they save at this size
-            olk = o[:, :1] * Rk[0] + o[:, 1:2] * Rk[1] + o[:, 2:] * Rk[2] - np.einsum("pi,ip->p", centers, Rk)[None]
-            dlk = d[:, :1] * Rk[0] + d[:, 1:2] * Rk[1] + d[:, 2:] * Rk[2]
-            inv = np.float32(1.0) / np.where(np.abs(dlk) < _TINY, _TINY, dlk)
-            t1 = (-half[:, k] - olk) * inv
-            t2 = (half[:, k] - olk) * inv
-            lo = np.minimum(t1, t2)
-            better = lo > tnear
-            tnear = np.where(better, lo, tnear)
-            if k:
-                axis = np.where(better, np.int8(k), axis)
-            np.minimum(tfar, np.maximum(t1, t2), out=tfar)
-            dls.append(dlk)
-    ok = (tnear <= tfar) & (tnear > 0.0) & (tnear <= max_distance)
-    tn = np.where(ok, tnear, np.inf)
-    best = np.argmin(tn, axis=1)
-    rows = np.arange(n)
-    dist = tn[rows, best].astype(np.float64)
-    ax = axis[rows, best].astype(np.int64)
-    sign = -np.sign(np.stack([dl[rows, best] for dl in dls], axis=1)[rows, ax])
-    normal = b.rot[best, :, ax] * sign[:, None]
-    return dist, best, normal
-
-
 def raycast_many(scene: ArScene | Any, origins: np.ndarray, directions: np.ndarray, max_distance: float = np.inf,
                  floor: bool = True, surfaces: bool = True) -> RayHits:
     """First hits of rays ``origins`` (N,3) + t ``directions`` (N,3) (either may be (3,)),
@@ -121,15 +79,12 @@ def raycast_many(scene: ArScene | Any, origins: np.ndarray, directions: np.ndarr
     oid = np.full(n, -1, np.int64)
     box = np.full(n, -1, np.int64)
     normal = np.zeros((n, 3))
-    if len(scene.boxes):
-        for s in range(0, n, _CHUNK):
-            sl = slice(s, s + _CHUNK)
-            dd, bb, nn = _boxes_chunk(scene, o[sl], d[sl], max_distance)
-            hit = np.isfinite(dd)
-            dist[sl] = dd
-            box[sl] = np.where(hit, bb, -1)
-            oid[sl] = np.where(hit, scene.boxes.object_ids[bb], -1)
-            normal[sl] = np.where(hit[:, None], nn, 0.0)
+    if len(scene.boxes) and n:
+        from .box_rays import first_boxes  # compiled on first use: a node that never casts skips numba
+
+        b = scene.boxes
+        dist, box, normal = first_boxes(o, d, b.centers, b.half, b.rot, max_distance)
+        oid = np.where(box >= 0, b.object_ids[np.maximum(box, 0)], -1)
     tf = np.full(n, np.inf)
     if floor:
         with np.errstate(divide="ignore", invalid="ignore"):
