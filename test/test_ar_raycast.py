@@ -62,3 +62,40 @@ def test_batch_matches_single() -> None:
         else:
             assert hits.object_id[k] == h.object_id and abs(hits.distance[k] - h.distance) < 1e-9
     assert hits.hit.sum() > 50
+
+
+def _slab_reference(o: np.ndarray, d: np.ndarray, c: np.ndarray, half: np.ndarray, R: np.ndarray) -> float:
+    """Entry distance of one ray into one box (inf: none, or the origin inside), plainly."""
+    ol, dl = (o - c) @ R, d @ R
+    lo, hi = -np.inf, np.inf
+    for k in range(3):
+        if abs(dl[k]) < 1e-20:
+            if abs(ol[k]) > half[k]:
+                return np.inf
+            continue
+        t1, t2 = sorted(((-half[k] - ol[k]) / dl[k], (half[k] - ol[k]) / dl[k]))
+        lo, hi = max(lo, t1), min(hi, t2)
+    return lo if 0.0 < lo <= hi else np.inf
+
+
+def test_compiled_slab_test_matches_a_plain_one_and_skips_bad_rays() -> None:
+    from shape_detector.ar.box_rays import first_boxes
+
+    sc = _scene()
+    b = sc.boxes
+    rng = np.random.default_rng(3)
+    o = rng.uniform([-1, -1, 0.1], [4, 2, 2.0], (300, 3))
+    d = b.centers[rng.integers(0, len(b.centers), 300)] + rng.normal(0.0, 0.3, (300, 3)) - o  # aimed near boxes
+    d[:40, 2] = 0.0  # parallel to the tops
+    d[40:60, :2] = 0.0  # straight up or down
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    dist, box, normal = first_boxes(o, d, b.centers, b.half, b.rot, np.inf)
+    want = np.array([[_slab_reference(o[i], d[i], b.centers[p], b.half[p], b.rot[p]) for p in range(len(b.centers))]
+                     for i in range(len(o))])
+    np.testing.assert_allclose(dist, want.min(1), rtol=1e-9, atol=1e-9)
+    hit = np.isfinite(dist)
+    assert hit.sum() > 100 and np.all(box[hit] == want[hit].argmin(1)) and np.all(box[~hit] == -1)
+    np.testing.assert_allclose(np.linalg.norm(normal[hit], axis=1), 1.0, atol=1e-9)
+    assert np.all(np.einsum("ij,ij->i", normal[hit], d[hit]) < 0)  # the face entered faces the ray
+    bad = raycast_many(sc, [[np.nan, 0.0, 2.0], [0.0, 0.0, 2.0]], [[0.0, 0.0, -1.0], [np.inf, 0.0, 0.0]])
+    assert not bad.hit.any() and np.all(bad.object_id == -1)

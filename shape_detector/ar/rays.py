@@ -63,7 +63,8 @@ def _unit_rays(origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray,
     o, d = np.broadcast_arrays(o, d)
     n = np.linalg.norm(d, axis=1, keepdims=True)
     bad = ~(np.isfinite(n[:, 0]) & (n[:, 0] > _EPS) & np.all(np.isfinite(o), axis=1))
-    d = np.where(bad[:, None], np.nan, d / np.where(n > _EPS, n, 1.0))
+    with np.errstate(invalid="ignore"):  # an infinite direction: inf / inf, marked bad anyway
+        d = np.where(bad[:, None], np.nan, d / np.where(n > _EPS, n, 1.0))
     return o, d
 
 
