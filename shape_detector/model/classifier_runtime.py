@@ -49,7 +49,7 @@ class ClassifierPredictor:
 
     def _init_torch(self, trace: bool) -> None:
         from .classifier import _Calibrated
-        from .predictor import bf16_min_batch
+        from .devices import bf16_min_batch
         from .traced import TracedModule
 
         self.backend = "torch"

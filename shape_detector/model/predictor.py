@@ -31,7 +31,7 @@ from ..geometry import rot_z, wrap_angle
 from ..types import Cuboid
 from .config import PRECISIONS, ModelConfig
 from .batching import MIRROR_CONFLICT, concat as _concat, merge_mirrored, repeat_first as _repeat_first, stack as _stack
-from .devices import AUTO_BF16_MIN_BATCH, bf16_min_batch, cpu_has_amx, resolve_device  # noqa: F401 - re-exported
+from .devices import bf16_min_batch, resolve_device
 from .onnx_backend import resolve_backend
 from .onnx_quantize import HEAD_PASSES, int8_graphs, quantized_graphs, quantized_passes
 from .prediction import FrustumPrediction, refined_score
@@ -71,7 +71,7 @@ class FrustumPredictor:
     1 on a loaded 2-core machine); both backends release the GIL while a graph runs.
     ``precision`` (torch): ``"fp32"`` (default), ``"bf16"`` (bfloat16 autocast: about 2x
     faster on CPUs with AMX / AVX512-BF16 for large batches, much slower on those without)
-    or ``"auto"`` (bf16 for batches of at least :data:`AUTO_BF16_MIN_BATCH` frustums on a CPU
+    or ``"auto"`` (bf16 for batches of at least :data:`.devices.AUTO_BF16_MIN_BATCH` frustums on a CPU
     with AMX, else fp32); onnxruntime runs fp32, with ``"int8"`` the box and shape
     PointNets' wide layers in int8, with ``"auto"`` those of some passes
     (:func:`.onnx_quantize.quantized_passes`). Torch runs ``"int8"`` as fp32.

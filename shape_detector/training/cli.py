@@ -81,7 +81,7 @@ def load_config(path: Path | None, overrides: list[str] | None = None):
 
 
 def _resolve_device(name: str):
-    from ..model.predictor import resolve_device
+    from ..model.devices import resolve_device
 
     return resolve_device(name)
 
