@@ -195,9 +195,10 @@ class DetectorNode(NodeCore, Node):
         if key != self._surfaces_key:
             from msg_conversion.surfaces import surfaces_to_markers
 
-            from .ar import surfaces
+            from .ar import ArScene, surfaces
 
-            self.surfaces_pub.publish(surfaces_to_markers(surfaces(objects), self.types, stamp, frame))
+            found = surfaces(ArScene(objects, grid, frame, observed=scene.observed()))  # measured heights
+            self.surfaces_pub.publish(surfaces_to_markers(found, self.types, stamp, frame))
             self._surfaces_key = key
 
     def _on_get_plan(self, request: Any, response: Any) -> Any:

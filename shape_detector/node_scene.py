@@ -159,6 +159,13 @@ class SceneFeed:
         with self.lock:
             return self.map.objects(), self.map.grid(), self.map.stamp_ns
 
+    def observed(self) -> tuple[np.ndarray, float] | None:
+        """The map's observed surface points (M,3) world and the pad by which an object claims
+        them (for ``ArScene.observed``), or None when it keeps none."""
+        with self.lock:
+            pts = self.map.surface_points()
+            return None if pts is None else (pts, float(self.map.config.surface_pad))
+
     def set_map(self, scene: SceneMap) -> None:
         """Replace the map (a loaded one, or a test's) and treat it as world-frame data."""
         with self.lock:

@@ -74,3 +74,21 @@ def test_floor_height_without_a_grid() -> None:
     o.center = o.center - [0, 0, 1.2]
     assert [x.affordance for x in surfaces(ArScene([o]))] == ["place"]
     assert surfaces(ArScene([o]), floor_z=0.0) == []  # 0.45 m below "the floor": no use
+
+
+def test_a_top_the_camera_saw_takes_its_measured_height() -> None:
+    from dataclasses import replace
+
+    rng = np.random.default_rng(4)
+    xy = rng.uniform([0.55, 1.75], [1.45, 2.25], (400, 2))  # over the 1.0 x 0.6 m top centred at (1, 2)
+    seen = np.column_stack([xy, rng.normal(0.72, 0.004, 400)])  # the real top: 3 cm below the estimate
+    cup = np.column_stack([rng.uniform([0.9, 1.9], [1.0, 2.0], (60, 2)), rng.uniform(0.73, 0.79, 60)])
+    beside = np.column_stack([rng.uniform([1.6, 1.8], [1.7, 2.2], (200, 2)), np.full(200, 0.70)])  # off the top
+    obj = replace(table(4, (1.0, 2.0)), surface=np.concatenate([seen, cup, beside]))
+    top = surfaces(ArScene([obj]))[0]
+    assert abs(top.height - 0.72) < 0.003
+    assert abs(surfaces(ArScene([obj]), measured=False)[0].height - 0.75) < 1e-9
+    few = replace(obj, surface=seen[:5])  # too few points: the primitive's estimate stands
+    assert abs(surfaces(ArScene([few]))[0].height - 0.75) < 1e-9
+    far = replace(obj, surface=seen + [0.0, 0.0, -0.2])  # a layer 20 cm lower is not this top
+    assert abs(surfaces(ArScene([far]))[0].height - 0.75) < 1e-9

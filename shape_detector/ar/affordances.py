@@ -3,7 +3,9 @@
 World frame, z up, metres. A primitive offers its top face when one of its axes is within
 ``max_tilt`` of vertical, the face is large enough, and no other primitive of the same object
 lies on most of it (a table's legs are covered by its top, a bed frame by its mattress).
-Affordances come from the object's class, filtered by the face's height and size.
+Affordances come from the object's class, filtered by the face's height and size. Where the
+object carries observed surface points on the face (the depth camera saw the top), the face's
+height is the one measured (:func:`measured_height`), not the primitive's estimate.
 """
 
 from __future__ import annotations
@@ -86,16 +88,35 @@ def _covered_share(poly: np.ndarray, height: float, others: list[tuple[np.ndarra
     return float(covered.mean())
 
 
+def measured_height(points: np.ndarray | None, polygon: np.ndarray, height: float, band: float = 0.08,
+                    margin: float = 0.02, min_points: int = 8, layer: float = 0.02) -> float | None:
+    """World z (m) of the horizontal face ``polygon`` (K,2, ccw) at about ``height`` as the
+    observed ``points`` (M,3) show it: of the points over the polygon shrunk by ``margin``
+    and within ``band`` of ``height``, the median of those within ``layer`` of their median
+    (items standing on the face and edge points fall away); None with fewer than
+    ``min_points`` of them."""
+    if points is None or len(points) < min_points:
+        return None
+    c = polygon.mean(axis=0)
+    inner = c + (polygon - c) * np.clip(1.0 - margin / np.maximum(np.linalg.norm(polygon - c, axis=1), 1e-9), 0, 1)[:, None]
+    near = points[np.abs(points[:, 2] - height) <= band]
+    z = near[_inside_convex(near[:, :2], inner), 2] if len(near) else near[:, 2]
+    if len(z) < min_points:
+        return None
+    z = z[np.abs(z - np.median(z)) <= layer]
+    return float(np.median(z)) if len(z) >= min_points else None
+
+
 def surfaces(scene: ArScene | Any, max_tilt_deg: float = 10.0, min_side: float = 0.1, cover_gap: float = 0.05,
-             max_covered: float = 0.5, floor_z: float | None = None) -> list[Surface]:
+             max_covered: float = 0.5, floor_z: float | None = None, measured: bool = True) -> list[Surface]:
     """Usable top faces of the scene's primitives (objects' boxes where they have none).
 
     A face is dropped when another box of the same object overlaps the thin slab from its
     top to ``cover_gap`` (m) above on more than ``max_covered`` of its area, when it lies
     mostly on a larger face of the object at the same height, when a side is under
     ``min_side`` (m), or when no affordance of its class fits its height and size. Heights
-    count from ``floor_z`` (default: the scene's, see :class:`ArScene`). Sorted by object id,
-    then height.
+    count from ``floor_z`` (default: the scene's, see :class:`ArScene`); ``measured``: a face
+    the camera saw takes its measured height (module doc). Sorted by object id, then height.
     """
     scene = load_scene(scene)
     b = scene.boxes
@@ -106,6 +127,7 @@ def surfaces(scene: ArScene | Any, max_tilt_deg: float = 10.0, min_side: float =
     by_obj: dict[int, list[int]] = {}
     for i, oid in enumerate(b.object_ids):
         by_obj.setdefault(int(oid), []).append(i)
+    seen = dict(zip((o.id for o in scene.objects), scene.surface_points)) if measured else {}
     for oid, idx in by_obj.items():
         obj = scene.object(oid)
         uses = CLASS_AFFORDANCES.get(obj.class_name if obj else "", ())
@@ -118,6 +140,8 @@ def surfaces(scene: ArScene | Any, max_tilt_deg: float = 10.0, min_side: float =
             height, poly, sides = face
             if sides.min() < min_side:
                 continue
+            z = measured_height(seen.get(oid), poly, height)
+            height = height if z is None else z
             others = [(b.centers[j], b.half[j], b.rot[j]) for j in idx if j != i]
             if others and _covered_share(poly, height, others, cover_gap) > max_covered:
                 continue

@@ -116,16 +116,22 @@ class ArScene:
                 self.floor_z = float(self.boxes.lo[:, 2].min()) if len(self.boxes) else 0.0
 
     @cached_property
-    def surface_index(self) -> Any:
-        """The objects' observed surface points (``SceneObject.surface``, else their share of
-        ``observed``) arranged for ray casts (:class:`~shape_detector.ar.surface_rays.SurfaceIndex`,
-        built on first use), or None when there are none."""
+    def surface_points(self) -> list[np.ndarray | None]:
+        """Each object's observed surface points (M,3) world: ``SceneObject.surface``, else its
+        share of ``observed`` (split on first use); None where it has none."""
         from ..scene.surface import points_in_boxes
 
         surfaces = [o.surface for o in self.objects]
         if self.observed is not None and all(s is None for s in surfaces) and self.objects:
             surfaces = points_in_boxes(self.observed[0], self.objects, self.observed[1])
-        given = [(o.id, s, o.rotation) for o, s in zip(self.objects, surfaces) if s is not None and len(s)]
+        return [s if s is not None and len(s) else None for s in surfaces]
+
+    @cached_property
+    def surface_index(self) -> Any:
+        """The objects' observed surface points (:attr:`surface_points`) arranged for ray casts
+        (:class:`~shape_detector.ar.surface_rays.SurfaceIndex`, built on first use), or None
+        when there are none."""
+        given = [(o.id, s, o.rotation) for o, s in zip(self.objects, self.surface_points) if s is not None]
         if not given:
             return None  # without importing numba
         from .surface_rays import build_index

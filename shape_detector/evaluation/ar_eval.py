@@ -16,7 +16,11 @@ as a check of this code, the true scene) and are scored against the room's true 
   grid, both on floor the map saw, joined in the true grid: share the map's ``plan`` joins;
   ``plan_clear`` -- share of found paths keeping ``agent_radius - margin`` from every true
   footprint (the whole polyline, sampled every 2 cm). Both for the default (unknown cells
-  blocked) and, suffixed ``_interior``, for enclosed unknown cells walkable.
+  blocked) and, suffixed ``_interior``, for enclosed unknown cells walkable;
+* ``surface_height_err_cm`` -- the map's usable surfaces (``surfaces()``): median height error
+  against the true part top under each surface's centre (the one nearest in height, within
+  ``max_err``); ``surface_within_2cm`` the share of those within 2 cm, ``surface_matched`` the
+  share of surfaces with such a true top.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from ..ar.affordances import surfaces
 from ..ar.collision import collides_many, distance_to_scene
 from ..ar.planning import traversable
 from ..ar.queries import SceneQueries
@@ -196,13 +201,37 @@ def plan_metric(truth: Truth, m: ArScene, n_pairs: int, rng: np.random.Generator
     return out
 
 
+def surface_metric(truth: Truth, m: ArScene, max_err: float = 0.3) -> dict[str, float]:
+    """Height errors of the map's usable surfaces (module doc)."""
+    found = surfaces(m)
+    tops = [(p.center, 0.5 * p.size, p.rotation) for o in truth.objects.objects for p in o.primitives
+            if np.max(np.abs(p.rotation[2])) > 0.98]  # parts with a vertical axis: a horizontal top
+    errs = []
+    for f in found:
+        c = f.polygon.mean(axis=0)
+        best = np.inf
+        for pc, ph, R in tops:
+            local = (np.array([*c, pc[2]]) - pc) @ R
+            k = int(np.argmax(np.abs(R[2])))
+            if all(abs(local[j]) <= ph[j] for j in range(3) if j != k):
+                err = abs(pc[2] + abs(R[2, k]) * ph[k] - f.height)
+                best = min(best, err)
+        if best <= max_err:
+            errs.append(best)
+    e = np.array(errs)
+    return {"surface_height_err_cm": 100 * float(np.median(e)) if len(e) else float("nan"),
+            "surface_within_2cm": float(np.mean(e <= 0.02)) if len(e) else float("nan"),
+            "surface_matched": len(e) / len(found) if found else float("nan"), "surfaces": float(len(found))}
+
+
 def evaluate_map(truth: Truth, m: ArScene, cameras: list[tuple[np.ndarray, np.ndarray, int, int]], seen_ids: set[int],
                  rng: np.random.Generator, n_rays: int = 2000, n_points: int = 2000, n_pairs: int = 40,
                  radius: float = 0.1, agent_radius: float = 0.2) -> dict[str, float]:
-    """All three metrics of one map."""
+    """All the metrics of one map."""
     out = ray_metric(truth, m, cameras, n_rays, rng)
     out.update(collide_metric(truth, m, seen_ids, n_points, rng, radius))
     out.update(plan_metric(truth, m, n_pairs, rng, agent_radius))
+    out.update(surface_metric(truth, m))
     return out
 
 
