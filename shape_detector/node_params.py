@@ -68,6 +68,9 @@ class NodeConfig:
     grid_resolution: float = setting(0.05, "navigation grid cell size (~/map), m", range=(0.005, 1.0))
     inflation_radius: float = setting(0.2, "agent radius: the grid is inflated by it for ~/get_plan, m",
                                       range=(0.0, 5.0))
+    plan_unknown: str = setting("interior", "what ~/get_plan makes of unknown grid cells: interior (unseen floor "
+                                "enclosed by seen cells is walkable at twice the cost, as nav2 allows unknown "
+                                "space), blocked (seen floor only) or free", choices=("interior", "blocked", "free"))
     scene_confirm_observations: int = setting(3, "a tracked object is published once detected in this many "
                                               "frames", range=(1, 1000))
     scene_delete_misses: int = setting(3, "a tracked object is removed after this many frames that see its space "

@@ -87,6 +87,7 @@ class SceneFeed:
         self._pose_arrived = threading.Condition(self.lock)
         self.newest_pose_ns = -1  # stamp of the newest moving pose (not /tf_static)
         self.pose_timeout = float(p["pose_timeout"])
+        self.plan_unknown = str(p.get("plan_unknown", "interior"))  # ~/get_plan's unknown cells
         self.posed = False  # the map holds world-frame data
         self.static_updates = 0  # updates made without a pose (auto / none)
         self.version = 0  # bumped by every map update
@@ -193,7 +194,8 @@ def answer_plan(feed: SceneFeed | None, request: Any, types: Any, stamp_ns: int,
         frame = feed.config.world_frame
         with feed.lock:
             queries = SceneQueries(feed.map)
-        result = plan_request(queries, request, frame, agent_radius=feed.config.inflation_radius)
+        result = plan_request(queries, request, frame, agent_radius=feed.config.inflation_radius,
+                              unknown=feed.plan_unknown)
     if not result.ok:
         warn("get_plan", f"get_plan: no path ({result.message})", level="info")
     return path_message(result, types, stamp_ns, frame)

@@ -44,12 +44,13 @@ def test_gap_too_narrow_for_a_wide_agent() -> None:
     assert plan(g, (1.0, 0.5), (3.0, 0.5), agent_radius=0.55) is None
 
 
-def test_unknown_cells_block_by_default() -> None:
+def test_enclosed_unknown_cells_are_walkable_by_default() -> None:
     g = wall_grid(gap=False)
     g.data[:, 40:42] = -1  # the wall is unknown space instead
-    assert plan(g, (1.0, 0.5), (3.0, 0.5)) is None
+    assert plan(g, (1.0, 0.5), (3.0, 0.5), unknown="blocked") is None
     assert plan(g, (1.0, 0.5), (3.0, 0.5), unknown="free") is not None
     # a 10 cm unseen band between seen floor is enclosed (a gap between depth samples)
+    assert plan(g, (1.0, 0.5), (3.0, 0.5)) is not None
     assert plan(g, (1.0, 0.5), (3.0, 0.5), unknown="interior") is not None
     with pytest.raises(ValueError):
         plan(g, (1.0, 0.5), (3.0, 0.5), unknown="maybe")

@@ -121,11 +121,13 @@ def test_a_malformed_pose_message_is_warned_not_raised():
 
 
 def _free_grid_map(blocked: bool = False) -> SceneMap:
-    """4 m x 2 m free floor from (0, 0); ``blocked``: a wall across x = 2 m with no gap."""
+    """4 m x 2 m free floor from (0, 0); ``blocked``: a 20 cm deep shelf across x = 2 m with no
+    gap (an object: the grid a map reloads marks only objects' footprints occupied)."""
+    from ar_scenes import box_object
+
     data = np.zeros((40, 80), np.int8)
-    if blocked:
-        data[:, 38:42] = 100
-    return SceneMap.from_json(scene_to_dict("odom", 1, [], NavGrid(0.05, np.zeros(2), data)))
+    objects = [box_object(1, "bookshelf", (2.0, 1.0, 0.5), (0.2, 2.2, 1.0))] if blocked else []
+    return SceneMap.from_json(scene_to_dict("odom", 1, objects, NavGrid(0.05, np.zeros(2), data)))
 
 
 def rclpy_types():

@@ -125,9 +125,11 @@ def test_scene_and_map_from_an_odometry_topic(scene_node):
 
 def test_get_plan_answers_on_the_grid(scene_node):
     h = scene_node
+    from ar_scenes import box_object
+
     data = np.zeros((40, 80), np.int8)  # 4 m x 2 m of free floor from (0, 0)
-    data[:30, 38:42] = 100  # a wall across x = 2 m with a gap at y > 1.5 m
-    h.node.scene.set_map(SceneMap.from_json(scene_to_dict("odom", 1, [], NavGrid(0.05, np.zeros(2), data))))
+    shelf = box_object(1, "bookshelf", (2.0, 0.75, 0.5), (0.2, 1.5, 1.0))  # across x = 2 m, a gap at y > 1.5 m
+    h.node.scene.set_map(SceneMap.from_json(scene_to_dict("odom", 1, [shelf], NavGrid(0.05, np.zeros(2), data))))
     assert h.client.wait_for_service(timeout_sec=5.0)
     req = GetPlan.Request()
     for ps, (x, y) in ((req.start, (0.5, 0.5)), (req.goal, (3.5, 0.5))):

@@ -46,9 +46,9 @@ def densify(waypoints: np.ndarray, step: float) -> np.ndarray:
 
 
 def plan_request(queries: SceneQueries, request: Any, frame_id: str, agent_radius: float = 0.2,
-                 step: float = 0.05) -> PlanResult:
+                 step: float = 0.05, unknown: str = "interior") -> PlanResult:
     """Answer a GetPlan request on the map: a path for a disc of ``agent_radius`` m, resampled
-    every ``step`` m. ``request.tolerance`` (m) widens how far start and goal may move onto
+    every ``step`` m, with ``unknown`` cells treated as :mod:`.planning` says. ``request.tolerance`` (m) widens how far start and goal may move onto
     traversable floor (at least the radius). Empty frame ids count as ``frame_id``."""
     try:
         start, _, f_start = _xy_yaw(request.start)
@@ -64,7 +64,7 @@ def plan_request(queries: SceneQueries, request: Any, frame_id: str, agent_radiu
         return PlanResult(False, np.zeros((0, 4)), "the map has no navigation grid yet")
     tol = float(getattr(request, "tolerance", 0.0) or 0.0)
     snap = max(agent_radius, tol if np.isfinite(tol) else 0.0)
-    path = queries.plan(start, goal, agent_radius=agent_radius, snap_distance=snap)
+    path = queries.plan(start, goal, agent_radius=agent_radius, unknown=unknown, snap_distance=snap)
     if path is None:
         return PlanResult(False, np.zeros((0, 4)), "no path")
     pts = densify(np.array(path), step)

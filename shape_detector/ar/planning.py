@@ -3,13 +3,16 @@
 World frame, metres; grid cells are int8 (-1 unknown, 0 free, 100 occupied), row = y,
 col = x. What unknown cells mean is a choice (``unknown``):
 
-* ``"blocked"`` (default, the safe choice): only seen free floor is walked on; unknown space
-  may hold furniture the map has not seen;
-* ``"interior"``: unknown cells enclosed by the known cells (inside their morphological
-  closing by a disc of ``INTERIOR_CLOSE`` m: floor hidden behind furniture, the strip under
-  the walking camera, gaps between depth samples) are walkable at ``UNKNOWN_COST`` times the
-  length, so paths prefer seen floor; unknown cells outside the known cells' extent (beyond
-  the walls, which the grid does not hold) stay blocked;
+* ``"interior"`` (default, as nav2's planners allow unknown space by default): unknown cells
+  enclosed by the known cells (inside their morphological closing by a disc of
+  ``INTERIOR_CLOSE`` m: floor hidden behind furniture, the strip under the walking camera,
+  gaps between depth samples) are walkable at ``UNKNOWN_COST`` times the length, so paths
+  prefer seen floor; unknown cells outside the known cells' extent (beyond the walls, which
+  the grid does not hold) stay blocked. It finds paths on maps whose seen floor is patchy, at
+  the price of paths that pass closer to furniture the map has not seen (measured in
+  docs/experiments);
+* ``"blocked"`` (the cautious choice): only seen free floor is walked on; unknown space may
+  hold furniture the map has not seen;
 * ``"free"``: every unknown cell is walkable (at ``UNKNOWN_COST``).
 
 Traversable cells keep the radius from every blocked cell. The search is Dijkstra on the
@@ -47,7 +50,7 @@ def closing(mask: np.ndarray, radius_cells: float) -> np.ndarray:
     return (ndimage.distance_transform_edt(grown) > radius_cells)[pad:-pad, pad:-pad]
 
 
-def walkable(grid: NavGrid, unknown: str = "blocked") -> tuple[np.ndarray, np.ndarray]:
+def walkable(grid: NavGrid, unknown: str = "interior") -> tuple[np.ndarray, np.ndarray]:
     """(H, W) bool walkable cells before inflation and (H, W) float step cost multipliers
     (1 on seen floor, ``UNKNOWN_COST`` on walkable unknown cells); see the module doc."""
     if unknown not in UNKNOWN_POLICIES:
@@ -62,7 +65,7 @@ def walkable(grid: NavGrid, unknown: str = "blocked") -> tuple[np.ndarray, np.nd
     return free | unk, np.where(unk, UNKNOWN_COST, 1.0)
 
 
-def traversable(grid: NavGrid, agent_radius: float, unknown: str = "blocked") -> np.ndarray:
+def traversable(grid: NavGrid, agent_radius: float, unknown: str = "interior") -> np.ndarray:
     """(H, W) bool: walkable cells whose centre is farther than ``agent_radius`` (m) from every
     blocked cell: from the cell's area, taken as its centre's distance minus half a cell,
     since an obstacle may reach up to the edge of the cells it marks."""
@@ -215,14 +218,14 @@ def plan_on_graph(grid: NavGrid, g: CellGraph, start_xy: np.ndarray, goal_xy: np
     return [(float(x), float(y)) for x, y in pts]
 
 
-def nav_graph(grid: NavGrid, agent_radius: float, unknown: str = "blocked") -> CellGraph:
+def nav_graph(grid: NavGrid, agent_radius: float, unknown: str = "interior") -> CellGraph:
     """The navigation graph of a grid for a disc of ``agent_radius`` m."""
     _, cost = walkable(grid, unknown)
     return build_graph(traversable(grid, agent_radius, unknown), cost)
 
 
 def plan(scene_or_grid: Any, start_xy: np.ndarray, goal_xy: np.ndarray, agent_radius: float = 0.2,
-         unknown: str = "blocked", snap_distance: float | None = None) -> list[tuple[float, float]] | None:
+         unknown: str = "interior", snap_distance: float | None = None) -> list[tuple[float, float]] | None:
     """Shortest path (world (x, y) waypoints, metres) for a disc of ``agent_radius`` from
     ``start_xy`` to ``goal_xy`` on the grid of a scene (or a ``NavGrid``-like grid); None when
     no path exists; ``unknown``: what unknown cells mean (module doc). ``snap_distance`` (default: the radius) lets a start or goal inside the

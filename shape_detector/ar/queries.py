@@ -68,7 +68,7 @@ class SceneQueries:
         """First hits of N rays (arrays; distance inf = no hit); ``surfaces`` as :meth:`raycast`."""
         return raycast_many(self.scene, origins, directions, max_distance, surfaces=surfaces)
 
-    def graph(self, agent_radius: float, unknown: str = "blocked") -> planning.CellGraph:
+    def graph(self, agent_radius: float, unknown: str = "interior") -> planning.CellGraph:
         """The cached navigation graph for a disc of ``agent_radius`` m."""
         if self.scene.grid is None:
             raise ValueError("this scene has no navigation grid")
@@ -77,10 +77,10 @@ class SceneQueries:
             self._graphs[key] = planning.nav_graph(self.scene.grid, agent_radius, unknown)
         return self._graphs[key]
 
-    def plan(self, start_xy: Any, goal_xy: Any, agent_radius: float = 0.2, unknown: str = "blocked",
+    def plan(self, start_xy: Any, goal_xy: Any, agent_radius: float = 0.2, unknown: str = "interior",
              snap_distance: float | None = None) -> list[tuple[float, float]] | None:
         """Smoothed shortest path (world (x, y) waypoints) on the grid, or None; ``unknown``:
-        ``"blocked"``, ``"interior"`` or ``"free"`` (see :mod:`.planning`)."""
+        ``"interior"`` (default), ``"blocked"`` or ``"free"`` (see :mod:`.planning`)."""
         if not np.isfinite(agent_radius) or agent_radius < 0:
             raise ValueError(f"agent_radius={agent_radius} must be finite and >= 0 (metres)")
         g = self.graph(agent_radius, unknown)

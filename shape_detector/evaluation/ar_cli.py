@@ -66,7 +66,7 @@ def main(args: argparse.Namespace) -> int:
     for k, thr in THRESHOLDS.items():
         print(f"  {k:>30}: {mean[k]:.3f}  (>= {thr:.2f}: {'pass' if mean[k] >= thr else 'FAIL'})")
     for k in ("ray_floor_within_5cm", "ray_within_5cm_primitives", "ray_median_err_cm", "plan_min_clearance_cm",
-              "plan_found_interior", "plan_clear_interior", "plan_min_clearance_cm_interior",
+              "plan_found_blocked", "plan_clear_blocked", "plan_min_clearance_cm_blocked",
               "surface_height_err_cm", "surface_within_2cm", "surface_matched", "surfaces", "objects_true",
               "objects_map"):
         print(f"  {k:>30}: {mean[k]:.3f}")

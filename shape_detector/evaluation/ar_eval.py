@@ -15,8 +15,8 @@ as a check of this code, the true scene) and are scored against the room's true 
 * ``plan_found`` -- pairs of random floor points free for the agent in the true footprint
   grid, both on floor the map saw, joined in the true grid: share the map's ``plan`` joins;
   ``plan_clear`` -- share of found paths keeping ``agent_radius - margin`` from every true
-  footprint (the whole polyline, sampled every 2 cm). Both for the default (unknown cells
-  blocked) and, suffixed ``_interior``, for enclosed unknown cells walkable;
+  footprint (the whole polyline, sampled every 2 cm). Both for the default (enclosed unknown
+  cells walkable) and, suffixed ``_blocked``, for unknown cells blocked;
 * ``surface_height_err_cm`` -- the map's usable surfaces (``surfaces()``): median height error
   against the true part top under each surface's centre (the one nearest in height, within
   ``max_err``); ``surface_within_2cm`` the share of those within 2 cm, ``surface_matched`` the
@@ -169,11 +169,11 @@ def _cell_values(grid: NavGrid | None, xy: np.ndarray) -> np.ndarray:
 
 
 def plan_metric(truth: Truth, m: ArScene, n_pairs: int, rng: np.random.Generator, agent_radius: float = 0.2,
-                margin: float = 0.02, policies: tuple[str, ...] = ("blocked", "interior")) -> dict[str, float]:
+                margin: float = 0.02, policies: tuple[str, ...] = ("interior", "blocked")) -> dict[str, float]:
     """``plan`` on the map against the true footprint grid (see the module doc), once per
     policy for the map's unknown cells (keys suffixed ``_<policy>`` after the first)."""
     tq, mq = SceneQueries(ArScene([], truth.grid)), SceneQueries(m)
-    free = traversable(truth.grid, agent_radius)
+    free = traversable(truth.grid, agent_radius, "blocked")  # the true grid has no unknown cells
     a, b = _free_points(free, truth.grid, 6 * n_pairs, rng), _free_points(free, truth.grid, 6 * n_pairs, rng)
     seen = (_cell_values(m.grid, a) == 0) & (_cell_values(m.grid, b) == 0)
     pairs = [(s, g) for s, g in zip(a[seen], b[seen]) if tq.plan(s, g, agent_radius, snap_distance=0.0) is not None]
