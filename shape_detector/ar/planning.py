@@ -58,7 +58,7 @@ def walkable(grid: NavGrid, unknown: str = "interior") -> tuple[np.ndarray, np.n
     data = np.asarray(grid.data)
     free = (data >= 0) & (data < FREE_MAX)
     unk = data < 0
-    if unknown == "interior":
+    if unknown == "interior" and unk.any():
         unk &= closing(data >= 0, INTERIOR_CLOSE / float(grid.resolution))
     elif unknown == "blocked":
         unk = np.zeros_like(free)
