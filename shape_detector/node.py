@@ -29,6 +29,7 @@ from __future__ import annotations
 import importlib
 import signal
 import sys
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -40,7 +41,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from .node_core import NodeCore
 from .node_params import PARAMETERS, descriptor_fields, validate_all
-from .node_scene import SceneFeed, pose_topics, surfaces_key
+from .node_scene import SURFACES_PERIOD, SceneFeed, pose_topics, surfaces_key
 
 
 def _descriptor(name: str) -> ParameterDescriptor:
@@ -180,10 +181,12 @@ class DetectorNode(NodeCore, Node):
 
         self.plan_srv = self.create_service(GetPlan, "~/get_plan", self._on_get_plan)
         self._surfaces_key: Any = None
+        self._surfaces_at = -float("inf")  # monotonic time of the last ~/surfaces
         return feed
 
     def _publish_scene(self, scene: SceneFeed, stamp: int) -> None:
-        """~/scene and ~/map (each processed frame), ~/surfaces when they changed."""
+        """~/scene and ~/map (each processed frame), ~/surfaces when they changed, at most every
+        ``SURFACES_PERIOD`` s (measuring heights reads the map's stored points: milliseconds)."""
         from msg_conversion.scene import grid_to_occupancy, scene_to_markers
 
         objects, grid, _ = scene.snapshot()
@@ -192,14 +195,14 @@ class DetectorNode(NodeCore, Node):
         self.map_pub.publish(grid_to_occupancy(grid, self.types, stamp, frame))
         self.stats.count("scene_published")
         key = surfaces_key(objects)
-        if key != self._surfaces_key:
+        if key != self._surfaces_key and time.monotonic() - self._surfaces_at >= SURFACES_PERIOD:
             from msg_conversion.surfaces import surfaces_to_markers
 
             from .ar import ArScene, surfaces
 
             found = surfaces(ArScene(objects, grid, frame, observed=scene.observed()))  # measured heights
             self.surfaces_pub.publish(surfaces_to_markers(found, self.types, stamp, frame))
-            self._surfaces_key = key
+            self._surfaces_key, self._surfaces_at = key, time.monotonic()
 
     def _on_get_plan(self, request: Any, response: Any) -> Any:
         """nav_msgs/srv/GetPlan on the current grid: an empty path when there is none."""

@@ -28,6 +28,8 @@ from .scene import NavGrid, SceneConfig, SceneMap, SceneObject
 
 #: surfaces are recomputed when an object moves or grows by about this much, m
 SURFACE_KEY_STEP = 0.02
+#: ... and at most this often, s (while a map settles its objects change every frame)
+SURFACES_PERIOD = 1.0
 #: values of the pose_source parameter
 POSE_SOURCES = ("auto", "tf", "odom", "pose", "none")
 
@@ -164,8 +166,7 @@ class SceneFeed:
         """The map's observed surface points (M,3) world and the pad by which an object claims
         them (for ``ArScene.observed``), or None when it keeps none."""
         with self.lock:
-            pts = self.map.surface_points()
-            return None if pts is None else (pts, float(self.map.config.surface_pad))
+            return self.map.observed_surfaces()
 
     def set_map(self, scene: SceneMap) -> None:
         """Replace the map (a loaded one, or a test's) and treat it as world-frame data."""

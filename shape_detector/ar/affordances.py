@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ..scene.types import SceneObject
 from .scene_data import ArScene, load_scene
 
 #: affordances per class, the first is the class's main use.
@@ -107,6 +108,17 @@ def measured_height(points: np.ndarray | None, polygon: np.ndarray, height: floa
     return float(np.median(z)) if len(z) >= min_points else None
 
 
+def _observed_near(scene: ArScene, obj: SceneObject, x: np.ndarray, y: np.ndarray) -> np.ndarray | None:
+    """The observed points to measure ``obj``'s faces on: its own (``SceneObject.surface``) or,
+    from a live map, the map's points (columns ``x``, ``y``) over its box's footprint: a face's
+    polygon and height band pick its share, so the split among all the boxes is not needed."""
+    if obj.surface is not None or scene.observed is None:
+        return obj.surface
+    ext = 0.5 * np.abs(obj.rotation[:2]) @ obj.size
+    (x0, y0), (x1, y1) = obj.center[:2] - ext, obj.center[:2] + ext
+    return scene.observed[0][(x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)]
+
+
 def surfaces(scene: ArScene | Any, max_tilt_deg: float = 10.0, min_side: float = 0.1, cover_gap: float = 0.05,
              max_covered: float = 0.5, floor_z: float | None = None, measured: bool = True) -> list[Surface]:
     """Usable top faces of the scene's primitives (objects' boxes where they have none).
@@ -127,7 +139,9 @@ def surfaces(scene: ArScene | Any, max_tilt_deg: float = 10.0, min_side: float =
     by_obj: dict[int, list[int]] = {}
     for i, oid in enumerate(b.object_ids):
         by_obj.setdefault(int(oid), []).append(i)
-    seen = dict(zip((o.id for o in scene.objects), scene.surface_points)) if measured else {}
+    seen: dict[int, np.ndarray | None] = {}
+    shared = scene.observed[0] if measured and scene.observed is not None else np.zeros((0, 3))
+    x, y = np.ascontiguousarray(shared[:, 0]), np.ascontiguousarray(shared[:, 1])
     for oid, idx in by_obj.items():
         obj = scene.object(oid)
         uses = CLASS_AFFORDANCES.get(obj.class_name if obj else "", ())
@@ -140,8 +154,11 @@ def surfaces(scene: ArScene | Any, max_tilt_deg: float = 10.0, min_side: float =
             height, poly, sides = face
             if sides.min() < min_side:
                 continue
-            z = measured_height(seen.get(oid), poly, height)
-            height = height if z is None else z
+            if measured:
+                if oid not in seen:
+                    seen[oid] = _observed_near(scene, obj, x, y)
+                z = measured_height(seen[oid], poly, height)
+                height = height if z is None else z
             others = [(b.centers[j], b.half[j], b.rot[j]) for j in idx if j != i]
             if others and _covered_share(poly, height, others, cover_gap) > max_covered:
                 continue

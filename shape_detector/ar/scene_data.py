@@ -180,9 +180,7 @@ def load_scene(source: Any) -> ArScene:
 
         grid_fn = getattr(source, "grid", None)
         grid = _grid_of(grid_fn() if callable(grid_fn) else grid_fn)
-        observed = None
-        if isinstance(source, SceneMap) and (pts := source.surface_points()) is not None:
-            observed = (pts, float(source.config.surface_pad))
+        observed = source.observed_surfaces() if isinstance(source, SceneMap) else None
         return ArScene([_as_object(o) for o in source.objects()], grid, str(getattr(source, "frame_id", "odom")),
                        observed=observed)
     if isinstance(source, (list, tuple)):

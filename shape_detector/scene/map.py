@@ -172,6 +172,12 @@ class SceneMap:
         None when the map keeps none (``surface_voxel`` 0)."""
         return None if self.surface is None else self.surface.points(self.config.surface_min_count)
 
+    def observed_surfaces(self) -> tuple[np.ndarray, float] | None:
+        """(:meth:`surface_points`, the pad by which an object's box claims them): what
+        ``ArScene.observed`` takes; None when the map keeps none."""
+        pts = self.surface_points()
+        return None if pts is None else (pts, float(self.config.surface_pad))
+
     def grid(self, inflate: bool = False) -> NavGrid:
         """The navigation grid (a copy; inflated by ``config.inflation_radius`` when ``inflate``)."""
         if self._grid is None:
