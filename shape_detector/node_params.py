@@ -71,6 +71,9 @@ class NodeConfig:
     plan_unknown: str = setting("interior", "what ~/get_plan makes of unknown grid cells: interior (unseen floor "
                                 "enclosed by seen cells is walkable at twice the cost, as nav2 allows unknown "
                                 "space), blocked (seen floor only) or free", choices=("interior", "blocked", "free"))
+    plan_uncertainty: float = setting(0.5, "~/get_plan keeps this many standard deviations of each box face's "
+                                      "spread over its observations as extra distance (at most 10 cm; 0 = none)",
+                                      range=(0.0, 5.0))
     scene_confirm_observations: int = setting(3, "a tracked object is published once detected in this many "
                                               "frames", range=(1, 1000))
     scene_delete_misses: int = setting(3, "a tracked object is removed after this many frames that see its space "

@@ -90,6 +90,7 @@ class SceneFeed:
         self.newest_pose_ns = -1  # stamp of the newest moving pose (not /tf_static)
         self.pose_timeout = float(p["pose_timeout"])
         self.plan_unknown = str(p.get("plan_unknown", "interior"))  # ~/get_plan's unknown cells
+        self.plan_uncertainty = float(p.get("plan_uncertainty", 0.5))  # ~/get_plan's margins (standard deviations)
         self.posed = False  # the map holds world-frame data
         self.static_updates = 0  # updates made without a pose (auto / none)
         self.version = 0  # bumped by every map update
@@ -196,7 +197,7 @@ def answer_plan(feed: SceneFeed | None, request: Any, types: Any, stamp_ns: int,
         with feed.lock:
             queries = SceneQueries(feed.map)
         result = plan_request(queries, request, frame, agent_radius=feed.config.inflation_radius,
-                              unknown=feed.plan_unknown)
+                              unknown=feed.plan_unknown, uncertainty=feed.plan_uncertainty)
     if not result.ok:
         warn("get_plan", f"get_plan: no path ({result.message})", level="info")
     return path_message(result, types, stamp_ns, frame)

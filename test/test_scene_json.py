@@ -50,6 +50,19 @@ def test_round_trip(tmp_path):
     assert SceneMap.from_json(doc).objects()[0].id == a.id  # a dict works too
 
 
+def test_face_spread_survives_the_round_trip_and_old_documents_load():
+    m = SceneMap()
+    for i, x in enumerate([3.0, 3.1, 2.9, 3.1]):
+        m.update([detection((x, 0.0, 0.45), CHAIR[1], 0.0, T0, score=0.9)], T0, None, None, stamp_ns=i)
+    a = m.objects()[0]
+    assert np.all(a.face_sd[:2] > 0.03) and np.all(a.face_sd[2:] < 1e-9)  # the boxes moved along x
+    doc = m.to_json()
+    np.testing.assert_allclose(SceneMap.from_json(doc).objects()[0].face_sd, a.face_sd, atol=1e-4)
+    for o in doc["objects"]:
+        del o["face_sd"]
+    assert np.all(SceneMap.from_json(doc).objects()[0].face_sd == 0.0)
+
+
 def test_loaded_map_keeps_updating_with_the_same_id():
     back = SceneMap.from_json(_map().to_json())
     back.update([detection(*CHAIR, T0)], T0, None, None, stamp_ns=5_000)

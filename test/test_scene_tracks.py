@@ -123,6 +123,30 @@ def test_quarter_turned_box_is_the_same_box():
     assert abs(np.sin(o.yaw)) < 1e-6
 
 
+def test_face_spread_measures_where_the_detections_disagree():
+    m = SceneMap()
+    for i in range(40):  # the -x face always at 2.4 m, the +x face at 3.6 or 3.8 m
+        far = 3.6 if i % 2 else 3.8
+        m.update([detection(((2.4 + far) / 2, 1.5, 0.375), (far - 2.4, 0.8, 0.75), 0.0, T0, cls="table")],
+                 T0, None, None, stamp_ns=i)
+    sd = m.objects()[0].face_sd
+    assert sd[0] < 0.01 and 0.07 < sd[1] < 0.13  # the spread of {3.6, 3.8} is 0.1 m
+    assert sd[2] < 0.01 and sd[3] < 0.01
+
+
+def test_face_spread_of_quarter_turns_and_merged_tracks():
+    m = SceneMap()
+    a = detection((3.0, 1.5, 0.375), (1.2, 0.8, 0.75), 0.0, T0, cls="table")
+    b = detection((3.0, 1.5, 0.375), (0.8, 1.2, 0.75), np.pi / 2, T0, cls="table")
+    _feed(m, [[a], [b], [a], [b]])
+    np.testing.assert_allclose(m.objects()[0].face_sd, 0.0, atol=1e-9)  # the same box, turned
+    m = SceneMap(SceneConfig(gate=0.05))  # two tracks at first, merged once both are confirmed
+    c = detection((3.08, 0.05, 0.45), (0.6, 0.6, 0.9), 0.0, T0)
+    _feed(m, [[detection((3.0, 0.0, 0.45), (0.6, 0.6, 0.9), 0.0, T0)]] * 3 + [[c]] * 3)
+    (o,) = m.objects()
+    assert np.all(o.face_sd > 0.01) and np.all(o.face_sd < 0.08)  # 8 / 5 cm apart, pooled
+
+
 def test_primitives_follow_to_the_world():
     m = SceneMap()
     seat = ((3.0, 0.0, 0.45), (0.5, 0.5, 0.05))

@@ -31,12 +31,15 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from ..scene.grid import NavGrid
-from .scene_data import as_grid
+from .margins import UNCERTAINTY, padded_grid
+from .scene_data import as_grid, load_scene
 
 FREE_MAX = 50  # cells with values in [0, FREE_MAX) count as free (nav_msgs convention)
 UNKNOWN_POLICIES = ("blocked", "interior", "free")
 #: length multiplier of steps onto walkable unknown cells
 UNKNOWN_COST = 2.0
+#: metres beyond the agent's radius a start or goal may move onto traversable floor by default
+SNAP_EXTRA = 0.2
 #: radius (m) of the closing that decides which unknown cells are enclosed ("interior")
 INTERIOR_CLOSE = 1.0
 
@@ -224,16 +227,38 @@ def nav_graph(grid: NavGrid, agent_radius: float, unknown: str = "interior") -> 
     return build_graph(traversable(grid, agent_radius, unknown), cost)
 
 
+def default_snap(agent_radius: float) -> float:
+    """How far (m) a start or goal inside the inflated (and padded) obstacles may move to the
+    nearest traversable cell by default: the radius plus :data:`SNAP_EXTRA`, since the boxes
+    the grid is built from are often a few centimetres too large (a goal tolerance, as in
+    nav2's planners)."""
+    return float(agent_radius) + SNAP_EXTRA
+
+
+def planning_grid(scene_or_grid: Any, uncertainty: float = UNCERTAINTY) -> NavGrid:
+    """The grid plans run on: a scene's grid with the margins of :mod:`.margins` around its
+    objects (a bare grid as it is)."""
+    if isinstance(scene_or_grid, NavGrid) or hasattr(scene_or_grid, "resolution"):
+        return as_grid(scene_or_grid)
+    scene = load_scene(scene_or_grid)
+    if scene.grid is None:
+        raise ValueError("the scene has no navigation grid")
+    return padded_grid(scene.grid, scene.objects, uncertainty)
+
+
 def plan(scene_or_grid: Any, start_xy: np.ndarray, goal_xy: np.ndarray, agent_radius: float = 0.2,
-         unknown: str = "interior", snap_distance: float | None = None) -> list[tuple[float, float]] | None:
+         unknown: str = "interior", snap_distance: float | None = None,
+         uncertainty: float = UNCERTAINTY) -> list[tuple[float, float]] | None:
     """Shortest path (world (x, y) waypoints, metres) for a disc of ``agent_radius`` from
     ``start_xy`` to ``goal_xy`` on the grid of a scene (or a ``NavGrid``-like grid); None when
-    no path exists; ``unknown``: what unknown cells mean (module doc). ``snap_distance`` (default: the radius) lets a start or goal inside the
+    no path exists; ``unknown``: what unknown cells mean (module doc); ``uncertainty``:
+    standard deviations of each box face's spread kept as extra distance (:mod:`.margins`;
+    0 = none). ``snap_distance`` (default :func:`default_snap`) lets a start or goal inside the
     inflated margin move to the nearest traversable cell. Builds the graph on every call:
     use ``SceneQueries.plan`` to reuse it."""
-    grid = as_grid(scene_or_grid)
     if not np.isfinite(agent_radius) or agent_radius < 0:
         raise ValueError(f"agent_radius={agent_radius} must be finite and >= 0 (metres)")
+    grid = planning_grid(scene_or_grid, uncertainty)
     g = nav_graph(grid, agent_radius, unknown)
-    snap = agent_radius if snap_distance is None else float(snap_distance)
+    snap = default_snap(agent_radius) if snap_distance is None else float(snap_distance)
     return plan_on_graph(grid, g, start_xy, goal_xy, snap)

@@ -19,6 +19,7 @@ import numpy as np
 
 from . import collision, planning
 from .affordances import Surface, surfaces
+from .margins import UNCERTAINTY, padded_grid
 from .rays import RayHit, RayHits, raycast, raycast_many
 from ..scene.grid import NavGrid
 from .scene_data import load_scene
@@ -68,23 +69,27 @@ class SceneQueries:
         """First hits of N rays (arrays; distance inf = no hit); ``surfaces`` as :meth:`raycast`."""
         return raycast_many(self.scene, origins, directions, max_distance, surfaces=surfaces)
 
-    def graph(self, agent_radius: float, unknown: str = "interior") -> planning.CellGraph:
-        """The cached navigation graph for a disc of ``agent_radius`` m."""
+    def graph(self, agent_radius: float, unknown: str = "interior",
+              uncertainty: float = UNCERTAINTY) -> planning.CellGraph:
+        """The cached navigation graph for a disc of ``agent_radius`` m (margins of
+        ``uncertainty`` standard deviations, :mod:`.margins`)."""
         if self.scene.grid is None:
             raise ValueError("this scene has no navigation grid")
-        key = (round(float(agent_radius), 6), str(unknown))
+        key = (round(float(agent_radius), 6), str(unknown), round(float(uncertainty), 6))
         if key not in self._graphs:
-            self._graphs[key] = planning.nav_graph(self.scene.grid, agent_radius, unknown)
+            grid = padded_grid(self.scene.grid, self.scene.objects, uncertainty)
+            self._graphs[key] = planning.nav_graph(grid, agent_radius, unknown)
         return self._graphs[key]
 
     def plan(self, start_xy: Any, goal_xy: Any, agent_radius: float = 0.2, unknown: str = "interior",
-             snap_distance: float | None = None) -> list[tuple[float, float]] | None:
+             snap_distance: float | None = None, uncertainty: float = UNCERTAINTY) -> list[tuple[float, float]] | None:
         """Smoothed shortest path (world (x, y) waypoints) on the grid, or None; ``unknown``:
-        ``"interior"`` (default), ``"blocked"`` or ``"free"`` (see :mod:`.planning`)."""
+        ``"interior"`` (default), ``"blocked"`` or ``"free"`` (see :mod:`.planning`);
+        ``uncertainty``: margins where the map is unsure of a box (:mod:`.margins`, 0 = none)."""
         if not np.isfinite(agent_radius) or agent_radius < 0:
             raise ValueError(f"agent_radius={agent_radius} must be finite and >= 0 (metres)")
-        g = self.graph(agent_radius, unknown)
-        snap = agent_radius if snap_distance is None else float(snap_distance)
+        g = self.graph(agent_radius, unknown, uncertainty)
+        snap = planning.default_snap(agent_radius) if snap_distance is None else float(snap_distance)
         return planning.plan_on_graph(self.scene.grid, g, start_xy, goal_xy, snap)
 
     def surfaces(self) -> list[Surface]:

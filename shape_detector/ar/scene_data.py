@@ -73,7 +73,13 @@ def _as_object(o: Any) -> SceneObject:
         rotation=_arr(o.rotation, (3, 3), "object rotation"), yaw=float(getattr(o, "yaw", 0.0)),
         observations=int(getattr(o, "observations", 1)), first_seen_ns=int(getattr(o, "first_seen_ns", 0)),
         last_seen_ns=int(getattr(o, "last_seen_ns", 0)), primitives=prims, surface=surface,
+        face_sd=_face_sd(getattr(o, "face_sd", None)),
     )
+
+
+def _face_sd(v: Any) -> np.ndarray:
+    """(4,) face spreads, metres (zeros when the object has none, as maps written before them)."""
+    return np.zeros(4) if v is None else np.abs(_arr(v, (4,), "object face_sd"))
 
 
 def build_boxes(objects: Sequence[SceneObject]) -> BoxSet:

@@ -28,7 +28,8 @@ def _nanmean(values: list[float]) -> float:
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
     """Arguments of ``shape-detector evaluate-ar``."""
-    p.add_argument("--seeds", type=int, nargs="+", default=[101, 102, 103], help="walk-through seeds")
+    p.add_argument("--seeds", type=int, nargs="+", default=list(range(101, 113)),
+                   help="walk-through seeds (default 101-112: with 3, one seed moves a share by several points)")
     p.add_argument("--frames", type=int, default=40, help="frames per walk-through")
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--height", type=int, default=480)

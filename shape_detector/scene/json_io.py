@@ -7,6 +7,7 @@
                   "rotation": [[3x3]] (columns = box axes, world), "yaw", "observations",
                   "first_seen_ns", "last_seen_ns",
                   "primitives": [{"center": [3], "size": [3], "rotation": [[3x3]]}],
+                  "face_sd": [4] (spread of the observed -x, +x, -y, +y faces, m; optional),
                   "surface" (optional): {"encoding": "base64-int16-mm-from-center", "count",
                                "data": observed surface points, x y z int16 mm from "center"}}],
      "grid": {"resolution", "origin": [x, y], "width", "height", "floor_z",

@@ -357,7 +357,8 @@ class SceneMap:
         prims = [ScenePrimitive(p.center, p.size, p.rotation) for p in t.primitives()]
         return SceneObject(id=t.id, class_name=t.class_name, score=t.score, center=t.center.copy(),
                            size=t.size.copy(), rotation=R, yaw=t.yaw, observations=t.observations,
-                           first_seen_ns=t.first_seen_ns, last_seen_ns=t.last_seen_ns, primitives=prims)
+                           first_seen_ns=t.first_seen_ns, last_seen_ns=t.last_seen_ns, primitives=prims,
+                           face_sd=t.face_sd)
 
 
 def disc_points(center_xy: np.ndarray, radius: float, step: float) -> np.ndarray:
@@ -399,4 +400,5 @@ def _track_from_object(o: SceneObject, max_weight: float) -> Track:
     t.prims_local = [((R.T @ (p.center - t.center)) / np.maximum(t.size, 1e-6),
                       (np.abs(R.T @ p.rotation) @ p.size) / np.maximum(t.size, 1e-6)) for p in o.primitives]
     t.prims_weight = w
+    t.face_ss, t.face_ss_weight = w * np.asarray(o.face_sd, float).reshape(4) ** 2, w
     return t

@@ -22,6 +22,9 @@ OUTLIER_SCALE = 0.2
 #: fusion weight after which a track's box is established
 OUTLIER_AFTER = 0.3
 _CLASS_INDEX = {c: i for i, c in enumerate(CLASSES)}
+#: horizontal face order (-x, +x, -y, +y) of a box after k quarter turns (:func:`align_yaw`):
+#: row k lists, for each face of the turned box, the face of the original it is
+_FACE_TURNS = np.array([[0, 1, 2, 3], [2, 3, 1, 0], [1, 0, 3, 2], [3, 2, 0, 1]])
 
 
 def rotz(yaw: float) -> np.ndarray:
@@ -105,6 +108,10 @@ class Track:
     #: consecutive frames in which the box was in view and seen empty
     empty_streak: int = 0
     frames_since_seen: int = 0
+    #: (4,) weighted sums of squared deviations of the observed -x, +x, -y, +y faces from the
+    #: fused ones (m^2), and their total weight: the faces' spread, :attr:`face_sd`
+    face_ss: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    face_ss_weight: float = 0.0
 
     @property
     def class_name(self) -> str:
@@ -130,6 +137,14 @@ class Track:
         """3x3 box axes in the world frame (columns)."""
         return rotz(self.yaw)
 
+    @property
+    def face_sd(self) -> np.ndarray:
+        """(4,) weighted standard deviation (m) of where the observations put the box's -x, +x,
+        -y, +y faces (along its axes); zeros after a single observation."""
+        if self.face_ss_weight <= 0.0:
+            return np.zeros(4)
+        return np.sqrt(np.maximum(self.face_ss, 0.0) / self.face_ss_weight)
+
     def primitives(self) -> list[Cuboid]:
         """The fused primitives as world-frame cuboids."""
         R = self.rotation
@@ -144,7 +159,7 @@ class Track:
         return cls(id=tid, center=ob.center.copy(), size=ob.size.copy(), yaw=ob.yaw,
                    class_evidence=ob.class_probs * ob.weight, weight_sum=ob.weight, existence=existence,
                    observations=1, first_seen_ns=ob.stamp_ns, last_seen_ns=ob.stamp_ns, score_sum=ob.score,
-                   prims_local=list(ob.prims_local), prims_weight=ob.weight)
+                   prims_local=list(ob.prims_local), prims_weight=ob.weight, face_ss_weight=ob.weight)
 
     def fuse(self, ob: Observation, existence_gain: float, max_weight: float) -> None:
         """Fold one observation into the track: weighted running means of centre, size and
@@ -156,6 +171,12 @@ class Track:
         d = float(np.linalg.norm(ob.center - self.center))
         trust = 1.0 / (1.0 + (d / OUTLIER_SCALE) ** 2) if self.weight_sum >= OUTLIER_AFTER else 1.0
         a = w * trust / (w0 + w * trust)
+        # spread of the faces (Welford's update with the fused box as the running mean)
+        d = self.rotation.T @ (ob.center - self.center)
+        seen = np.array([d[0] - 0.5 * size[0], d[0] + 0.5 * size[0], d[1] - 0.5 * size[1], d[1] + 0.5 * size[1]])
+        fused = 0.5 * np.array([-self.size[0], self.size[0], -self.size[1], self.size[1]])
+        self.face_ss = self.face_ss + w * (1.0 - a) * (seen - fused) ** 2
+        self.face_ss_weight += w
         self.center = self.center + a * (ob.center - self.center)
         self.size = self.size + a * (size - self.size)
         self.yaw = wrap(self.yaw + a * wrap(yaw - self.yaw))
@@ -196,6 +217,7 @@ class Track:
         yaw, size, k = align_yaw(other.yaw, other.size, self.yaw)
         w0, w1 = self.weight_sum, other.weight_sum
         a = w1 / max(w0 + w1, 1e-9)
+        self._absorb_spread(other, k, size)
         self.center = self.center + a * (other.center - self.center)
         self.size = self.size + a * (size - self.size)
         self.yaw = wrap(self.yaw + a * wrap(yaw - self.yaw))
@@ -209,6 +231,24 @@ class Track:
         self.confirmed = self.confirmed or other.confirmed
         if other.prims_weight > self.prims_weight:
             self.prims_local, self.prims_weight = _turn_prims(other.prims_local, k), other.prims_weight
+
+    def _absorb_spread(self, other: Track, k: int, size: np.ndarray) -> None:
+        """Pool the face spreads of a merged pair (``other`` turned by ``k`` quarter turns, its
+        size then ``size``), each about its own box, plus the two boxes' disagreement; called
+        before this box moves."""
+        R = self.rotation
+        a = _faces(self.center, self.size, R, self.center)
+        b = _faces(other.center, size, R, self.center)
+        wa, wb = self.face_ss_weight, other.face_ss_weight
+        wa_, wb_ = max(wa, 1e-9), max(wb, 1e-9)
+        self.face_ss = self.face_ss + other.face_ss[_FACE_TURNS[k % 4]] + wa_ * wb_ / (wa_ + wb_) * (a - b) ** 2
+        self.face_ss_weight = wa + wb
+
+
+def _faces(center: np.ndarray, size: np.ndarray, R: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """(4,) -x, +x, -y, +y faces of a box (centre, size) along the axes ``R`` from ``origin``."""
+    d = R.T @ (center - origin)
+    return np.array([d[0] - 0.5 * size[0], d[0] + 0.5 * size[0], d[1] - 0.5 * size[1], d[1] + 0.5 * size[1]])
 
 
 def class_probs_of(class_name: str, score: float, class_scores: np.ndarray | None) -> np.ndarray:

@@ -57,6 +57,9 @@ class SceneObject:
     #: (M,3) observed surface points inside the box (voxel means of the depth, world frame), or
     #: None when not asked for (see :mod:`shape_detector.scene.surface`)
     surface: np.ndarray | None = field(default=None, repr=False)
+    #: (4,) how far apart the observations put the box's -x, +x, -y, +y faces (along its axes):
+    #: their weighted standard deviation, metres; zeros when unknown
+    face_sd: np.ndarray = field(default_factory=lambda: np.zeros(4))
 
     def to_dict(self) -> dict:
         """The JSON form (``"class"`` for ``class_name``; ``"surface"`` only when there is one)."""
@@ -64,7 +67,8 @@ class SceneObject:
              "center": np.asarray(self.center, float).tolist(), "size": np.asarray(self.size, float).tolist(),
              "rotation": np.asarray(self.rotation, float).tolist(), "yaw": float(self.yaw),
              "observations": int(self.observations), "first_seen_ns": int(self.first_seen_ns),
-             "last_seen_ns": int(self.last_seen_ns), "primitives": [p.to_dict() for p in self.primitives]}
+             "last_seen_ns": int(self.last_seen_ns), "primitives": [p.to_dict() for p in self.primitives],
+             "face_sd": [round(float(v), 4) for v in np.asarray(self.face_sd, float).reshape(4)]}
         if self.surface is not None and len(self.surface):
             d["surface"] = surface_to_dict(self.surface, self.center)
         return d
@@ -78,7 +82,8 @@ class SceneObject:
                    observations=int(d.get("observations", 1)), first_seen_ns=int(d.get("first_seen_ns", 0)),
                    last_seen_ns=int(d.get("last_seen_ns", 0)),
                    primitives=[ScenePrimitive.from_dict(p) for p in d.get("primitives", [])],
-                   surface=surface_from_dict(d["surface"], d["center"]) if d.get("surface") else None)
+                   surface=surface_from_dict(d["surface"], d["center"]) if d.get("surface") else None,
+                   face_sd=np.asarray(d.get("face_sd", np.zeros(4)), float).reshape(4))
 
 
 def surface_to_dict(points: np.ndarray, center: np.ndarray) -> dict:
