@@ -164,3 +164,43 @@ def test_scene_map_keeps_what_the_depth_saw_and_saves_it(tmp_path) -> None:
     off = SceneMap(SceneConfig(floor_z=0.0, surface_voxel=0.0))
     off.update([detection(*chest, T)], T, depth, K, stamp_ns=0)
     assert off.surface is None
+
+
+def test_rays_stop_at_observed_surfaces_no_object_claims() -> None:
+    """A wall the camera saw (no object's box holds it) stops rays, as STRUCTURE_ID; the
+    dresser's own points stay the dresser's."""
+    from shape_detector.ar import STRUCTURE_ID
+    from shape_detector.scene.surface import split_points
+
+    wall = _plane_x(3.0, -2.0, 2.0, 0.1, 2.4)
+    front = _plane_x(0.40, -0.45, 0.45, 0.05, 0.95)
+    (claimed,), rest = split_points(np.concatenate([front, wall]), [_dresser(None)], pad=0.1)
+    assert len(claimed) == len(front) and len(rest) == len(wall)
+    sc = ArScene([_dresser(None)], observed=(np.concatenate([front, wall]), 0.1))
+    assert len(sc.structure_points) == len(wall)
+    hits = raycast_many(sc, np.array([[-2.0, 0.0, 0.5], [-2.0, 1.0, 0.5]]), np.array([[1.0, 0.0, 0.0]] * 2))
+    np.testing.assert_allclose(hits.distance, [2.40, 5.0], atol=0.02)  # the dresser's front; the wall beside it
+    assert hits.object_id.tolist() == [7, STRUCTURE_ID]
+    assert raycast_many(ArScene([_dresser(None)]), [-2.0, 1.0, 0.5], [1.0, 0.0, 0.0]).hit.tolist() == [False]
+    none = ArScene([], observed=(wall, 0.1))  # no objects at all: all of it is structure
+    assert raycast(none, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]).object_id == STRUCTURE_ID
+
+
+def test_structure_survives_the_json_round_trip(tmp_path) -> None:
+    from shape_detector.ar import STRUCTURE_ID
+
+    m = SceneMap(SceneConfig(floor_z=0.0))
+    m.surface.add(_plane_x(3.0, -2.0, 2.0, 0.1, 2.4), weight=2)
+    doc = m.to_json()
+    assert doc["structure"]["count"] > 1000
+    sc = load_scene(doc)
+    assert raycast(sc, [0.0, 0.5, 1.0], [1.0, 0.0, 0.0]).object_id == STRUCTURE_ID
+    np.testing.assert_allclose(raycast(sc, [0.0, 0.5, 1.0], [1.0, 0.0, 0.0]).distance, 3.0, atol=0.01)
+    back = SceneMap.from_json(doc)
+    assert len(back.surface_points()) == len(m.surface_points())
+    bad = dict(doc, structure={"center": [0, 0, 0], "encoding": "base64-int16-mm-from-center", "count": 5,
+                               "data": "AAAA"})
+    with pytest.raises(ValueError):
+        load_scene(bad)
+    old = {k: v for k, v in doc.items() if k != "structure"}  # a map written before structure
+    assert load_scene(old).structure_points is None

@@ -2,8 +2,9 @@
 
 Prints the median time of 10,000 ``collides`` queries (one batch, points within 30 cm of
 furniture) and of 1,000 ray casts (one batch) against a 20-object scene whose objects carry
-observed surface points on every face (and on the primitives alone), and of a plan across a
-10 m x 10 m grid at 5 cm (graph build included, and on a cached graph); single queries too.
+observed surface points on every face and whose four 2.5 m walls were seen whole (structure
+points; and on the primitives alone), and of a plan across a 10 m x 10 m grid at 5 cm (graph
+build included, and on a cached graph); single queries too.
 """
 
 from __future__ import annotations
@@ -72,7 +73,13 @@ def bench_scene(n_objects: int = 20, room: float = 10.0, seed: int = 0, surfaces
         local = (centers.reshape(-1, 2) - o.center[:2]) @ o.rotation[:2, :2]
         inside = np.all(np.abs(local) <= o.size[:2] / 2, axis=1).reshape(n, n)
         data[inside] = 100
-    return ArScene(objects, NavGrid(res, np.zeros(2), data))
+    walls = [ScenePrimitive(c, np.array(sz), np.eye(3)) for c, sz in (
+        (np.array([room / 2, -0.05, 1.25]), (room, 0.1, 2.5)), (np.array([room / 2, room + 0.05, 1.25]), (room, 0.1, 2.5)),
+        (np.array([-0.05, room / 2, 1.25]), (0.1, room, 2.5)), (np.array([room + 0.05, room / 2, 1.25]), (0.1, room, 2.5)))]
+    inner = face_points(walls) if surfaces else None
+    if inner is not None:  # the faces towards the room
+        inner = inner[(inner[:, 0] > -0.01) & (inner[:, 0] < room + 0.01) & (inner[:, 1] > -0.01) & (inner[:, 1] < room + 0.01)]
+    return ArScene(objects, NavGrid(res, np.zeros(2), data), structure=inner)
 
 
 def _median_ms(fn: Callable[[], object], repeats: int) -> float:
@@ -87,7 +94,7 @@ def _median_ms(fn: Callable[[], object], repeats: int) -> float:
 def run(repeats: int = 20, seed: int = 0) -> dict[str, float]:
     """Median milliseconds of each benchmark (see module doc)."""
     scene = bench_scene(seed=seed)
-    bare = ArScene([replace(o, surface=None) for o in scene.objects], scene.grid)
+    bare = ArScene([replace(o, surface=None) for o in scene.objects], scene.grid)  # no structure either
     rng = np.random.default_rng(seed + 1)
     owners = rng.integers(0, len(scene.objects), 10_000)
     centers = np.array([scene.objects[k].center for k in owners])
@@ -105,6 +112,7 @@ def run(repeats: int = 20, seed: int = 0) -> dict[str, float]:
         "collides_10k_ms": _median_ms(lambda: collision.collides_many(scene, pts, 0.1), repeats),
         "collides_single_us": 1e3 * _median_ms(lambda: collision.collides(scene, pts[0], 0.1), repeats * 10),
         "surface_points": float(len(scene.surface_index)),
+        "structure_points": float(len(scene.structure_points) if scene.structure_points is not None else 0),
         "raycast_1k_ms": _median_ms(lambda: raycast_many(scene, origins, dirs), repeats),
         "raycast_1k_primitives_ms": _median_ms(lambda: raycast_many(bare, origins, dirs), repeats),
         "raycast_single_us": 1e3 * _median_ms(lambda: q.raycast(origins[0], dirs[0]), repeats * 10),

@@ -5,8 +5,10 @@ direction. Where an object carries observed surface points (``SceneObject.surfac
 ray meets them, the hit is on them (:mod:`.surface_rays`: what the camera measured, within a
 centimetre or two); elsewhere on the first box (primitives, slab method). Boxes that contain
 a ray's origin are ignored by that ray (a camera inside a loosely estimated box still sees
-what is in front of it). The floor is the plane ``z = floor_z`` seen from above; its hits
-report ``FLOOR_ID``, and no surface behind it counts.
+what is in front of it). The observed surfaces no object claims (walls, clutter, furniture not
+mapped yet; ``ArScene.structure_points``) stop rays too, reporting ``STRUCTURE_ID``. The floor
+is the plane ``z = floor_z`` seen from above; its hits report ``FLOOR_ID``, and no surface
+behind it counts.
 """
 
 from __future__ import annotations
@@ -25,8 +27,9 @@ _EPS = 1e-12
 @dataclass
 class RayHit:
     """First hit of one ray: ``distance`` (m) along the unit direction, the hit object's id
-    (``FLOOR_ID`` = 0 for the floor), the outward unit ``normal`` (3,) and ``point`` (3,), world
-    frame; ``primitive_index`` into the object's primitives (-1: its box, its observed surface or the floor)."""
+    (``FLOOR_ID`` = 0 for the floor, ``STRUCTURE_ID`` = -2 for an observed surface of no
+    object), the outward unit ``normal`` (3,) and ``point`` (3,), world frame;
+    ``primitive_index`` into the object's primitives (-1: its box, an observed surface or the floor)."""
 
     distance: float
     object_id: int
@@ -37,8 +40,9 @@ class RayHit:
 
 @dataclass
 class RayHits:
-    """First hits of N rays: ``distance`` (N,) (inf: no hit), ``object_id`` (N,) (-1: no hit),
-    ``normal`` (N,3), ``box_index`` (N,) into ``scene.boxes`` (-1: floor, observed surface or no hit)."""
+    """First hits of N rays: ``distance`` (N,) (inf: no hit), ``object_id`` (N,) (as
+    :class:`RayHit`; -1: no hit), ``normal`` (N,3), ``box_index`` (N,) into ``scene.boxes`` (-1:
+    floor, observed surface or no hit)."""
 
     distance: np.ndarray
     object_id: np.ndarray

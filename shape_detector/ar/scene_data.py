@@ -18,11 +18,17 @@ from typing import Any
 import numpy as np
 
 from ..scene.grid import NavGrid
-from ..scene.json_io import grid_from_dict
+from ..scene.json_io import grid_from_dict, structure_from_dict
 from ..scene.types import SceneObject, ScenePrimitive
 
 #: object id reported for hits on the floor plane (track ids start at 1).
 FLOOR_ID = 0
+#: object id reported for hits on observed surfaces no object claims (walls, clutter, furniture
+#: not mapped yet); -1 means no hit
+STRUCTURE_ID = -2
+#: the structure's points are indexed for ray casts in cubes of this size (metres), each
+#: bounded tightly, so that a wall does not span one huge grid
+STRUCTURE_BLOCK = 1.0
 
 
 @dataclass
@@ -111,6 +117,9 @@ class ArScene:
     #: an object's box is grown to claim them), as a live ``SceneMap`` hands them over; the split
     #: waits for the first ray cast, which plans and collisions never pay for
     observed: tuple[np.ndarray, float] | None = field(default=None, repr=False)
+    #: (K,3) observed surface points no object claims (world), as saved; None: what ``observed``
+    #: leaves over, or none
+    structure: np.ndarray | None = field(default=None, repr=False)
     boxes: BoxSet = field(init=False)
 
     def __post_init__(self) -> None:
@@ -122,22 +131,44 @@ class ArScene:
                 self.floor_z = float(self.boxes.lo[:, 2].min()) if len(self.boxes) else 0.0
 
     @cached_property
+    def _split(self) -> tuple[list[np.ndarray | None], np.ndarray | None]:
+        """(each object's observed surface points or None, the structure's or None)."""
+        from ..scene.surface import split_points
+
+        surfaces: list = [o.surface for o in self.objects]
+        structure = self.structure
+        if self.observed is not None and all(s is None for s in surfaces):
+            surfaces, rest = split_points(self.observed[0], self.objects, self.observed[1])
+            structure = rest if structure is None else structure
+        return ([s if s is not None and len(s) else None for s in surfaces],
+                structure if structure is not None and len(structure) else None)
+
+    @property
     def surface_points(self) -> list[np.ndarray | None]:
         """Each object's observed surface points (M,3) world: ``SceneObject.surface``, else its
         share of ``observed`` (split on first use); None where it has none."""
-        from ..scene.surface import points_in_boxes
+        return self._split[0]
 
-        surfaces = [o.surface for o in self.objects]
-        if self.observed is not None and all(s is None for s in surfaces) and self.objects:
-            surfaces = points_in_boxes(self.observed[0], self.objects, self.observed[1])
-        return [s if s is not None and len(s) else None for s in surfaces]
+    @property
+    def structure_points(self) -> np.ndarray | None:
+        """(K,3) the observed surface points no object claims (:attr:`structure`, else what
+        ``observed`` leaves over), or None."""
+        return self._split[1]
 
     @cached_property
     def surface_index(self) -> Any:
-        """The objects' observed surface points (:attr:`surface_points`) arranged for ray casts
-        (:class:`~shape_detector.ar.surface_rays.SurfaceIndex`, built on first use), or None
-        when there are none."""
+        """The objects' observed surface points (:attr:`surface_points`) and the structure's
+        (:attr:`structure_points`, id :data:`STRUCTURE_ID`, in :data:`STRUCTURE_BLOCK` cubes)
+        arranged for ray casts (:class:`~shape_detector.ar.surface_rays.SurfaceIndex`, built on
+        first use), or None when there are none."""
         given = [(o.id, s, o.rotation) for o, s in zip(self.objects, self.surface_points) if s is not None]
+        rest = self.structure_points
+        if rest is not None:
+            cube = np.floor(rest / STRUCTURE_BLOCK).astype(np.int64)
+            order = np.lexsort(cube.T[::-1])
+            cube, pts = cube[order], rest[order]
+            starts = np.flatnonzero(np.r_[True, np.any(cube[1:] != cube[:-1], axis=1)])
+            given += [(STRUCTURE_ID, block, np.eye(3)) for block in np.split(pts, starts[1:])]
         if not given:
             return None  # without importing numba
         from .surface_rays import build_index
@@ -178,7 +209,9 @@ def load_scene(source: Any) -> ArScene:
         try:
             grid = _grid_of(grid_from_dict(source["grid"])) if source.get("grid") else None
             objects = [_as_object(SceneObject.from_dict(o)) for o in source["objects"]]
-            return ArScene(objects, grid, str(source.get("frame_id", "odom")))
+            structure = structure_from_dict(source)
+            return ArScene(objects, grid, str(source.get("frame_id", "odom")),
+                           structure=structure if len(structure) else None)
         except (KeyError, TypeError) as e:
             raise ValueError(f"scene JSON lacks or mistypes a field: {e}") from None
     if hasattr(source, "objects") and callable(source.objects):

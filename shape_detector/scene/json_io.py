@@ -11,7 +11,10 @@
                   "surface" (optional): {"encoding": "base64-int16-mm-from-center", "count",
                                "data": observed surface points, x y z int16 mm from "center"}}],
      "grid": {"resolution", "origin": [x, y], "width", "height", "floor_z",
-              "encoding": "base64-int8", "data": base64 of the (height, width) int8 cells, row-major}}
+              "encoding": "base64-int8", "data": base64 of the (height, width) int8 cells, row-major},
+     "structure" (optional): {"center": [x, y, z], "encoding": "base64-int16-mm-from-center", "count",
+                              "data": observed surface points no object claims (walls, clutter,
+                              furniture not mapped yet), x y z int16 mm from "center"}}
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from .grid import NavGrid
-from .types import SceneObject
+from .types import SceneObject, surface_from_dict, surface_to_dict
 
 
 def grid_to_dict(grid: NavGrid) -> dict[str, Any]:
@@ -51,10 +54,29 @@ def grid_from_dict(d: dict[str, Any]) -> NavGrid:
     return NavGrid(float(d["resolution"]), np.asarray(d["origin"], float), cells, float(d.get("floor_z", 0.0)))
 
 
-def scene_to_dict(frame_id: str, stamp_ns: int, objects: list[SceneObject], grid: NavGrid) -> dict[str, Any]:
-    """The whole JSON document as a dict."""
-    return {"frame_id": frame_id, "stamp_ns": int(stamp_ns), "objects": [o.to_dict() for o in objects],
-            "grid": grid_to_dict(grid)}
+def scene_to_dict(frame_id: str, stamp_ns: int, objects: list[SceneObject], grid: NavGrid,
+                  structure: np.ndarray | None = None) -> dict[str, Any]:
+    """The whole JSON document as a dict (``structure``: (K,3) world points, optional)."""
+    d = {"frame_id": frame_id, "stamp_ns": int(stamp_ns), "objects": [o.to_dict() for o in objects],
+         "grid": grid_to_dict(grid)}
+    if structure is not None and len(structure):
+        pts = np.asarray(structure, float).reshape(-1, 3)
+        center = np.round(0.5 * (pts.min(0) + pts.max(0)), 2)  # int16 millimetres reach 32 m either way
+        keep = np.all(np.abs(pts - center) < 32.0, axis=1)
+        d["structure"] = {"center": center.tolist(), **surface_to_dict(pts[keep], center)}
+    return d
+
+
+def structure_from_dict(d: dict[str, Any]) -> np.ndarray:
+    """(K,3) world points of a document's ``"structure"`` entry ((0,3) without one);
+    ValueError on a malformed entry."""
+    s = d.get("structure")
+    if not s:
+        return np.zeros((0, 3))
+    try:
+        return surface_from_dict(s, np.asarray(s["center"], float).reshape(3))
+    except (KeyError, TypeError) as e:
+        raise ValueError(f"scene JSON 'structure' lacks or mistypes a field: {e}") from None
 
 
 def load_dict(path_or_dict: str | Path | dict[str, Any]) -> dict[str, Any]:

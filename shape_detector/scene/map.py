@@ -37,9 +37,9 @@ from ..classes import CLASSES
 from ..types import Object3D
 from .association import associate, class_similarity, cost_matrix, duplicate_pairs, overlap
 from .grid import FloorMemory, NavGrid, build_grid, depth_points_world, estimate_floor_z, floor_cells_seen
-from .json_io import grid_from_dict, load_dict, scene_to_dict
+from .json_io import grid_from_dict, load_dict, scene_to_dict, structure_from_dict
 from .observe import to_observation
-from .surface import SurfaceMemory, points_in_boxes
+from .surface import SurfaceMemory, split_points
 from .tracks import N_CLASSES, Observation, Track
 from .types import SceneObject, ScenePrimitive
 from .visibility import EmptyParams, seen_empty
@@ -159,12 +159,19 @@ class SceneMap:
     def objects(self, surfaces: bool = False) -> list[SceneObject]:
         """The confirmed tracks, sorted by id; ``surfaces``: each with the observed surface
         points inside its box (``SceneObject.surface``; costs a pass over the stored points)."""
+        return self._objects_and_structure(surfaces)[0]
+
+    def _objects_and_structure(self, surfaces: bool) -> tuple[list[SceneObject], np.ndarray | None]:
+        """:meth:`objects`, and with ``surfaces`` the observed points no object claims (None
+        without surfaces)."""
         out = [self._published(t) for t in sorted(self.tracks, key=lambda t: t.id) if t.confirmed]
-        seen = self.surface_points() if surfaces and out else None
-        if seen is not None:
-            for o, pts in zip(out, points_in_boxes(seen, out, self.config.surface_pad)):
-                o.surface = pts
-        return out
+        seen = self.surface_points() if surfaces else None
+        if seen is None:
+            return out, None
+        per_object, rest = split_points(seen, out, self.config.surface_pad)
+        for o, pts in zip(out, per_object):
+            o.surface = pts
+        return out, rest
 
     def surface_points(self) -> np.ndarray | None:
         """(M,3) the observed surface points (voxel means seen ``surface_min_count`` times, world
@@ -202,7 +209,8 @@ class SceneMap:
 
     def to_json(self) -> dict[str, Any]:
         """The map as a JSON-ready dict (schema in :mod:`.json_io`)."""
-        return scene_to_dict(self.frame_id, self.stamp_ns, self.objects(surfaces=True), self.grid())
+        objects, structure = self._objects_and_structure(True)
+        return scene_to_dict(self.frame_id, self.stamp_ns, objects, self.grid(), structure)
 
     def save_json(self, path: str | Path) -> None:
         """Write :meth:`to_json` to ``path``."""
@@ -224,6 +232,9 @@ class SceneMap:
             m.tracks.append(_track_from_object(obj, m.config.max_weight))
             if obj.surface is not None and m.surface is not None:  # saved points passed the count test
                 m.surface.add(obj.surface, weight=max(1, m.config.surface_min_count))
+        structure = structure_from_dict(d)
+        if len(structure) and m.surface is not None:
+            m.surface.add(structure, weight=max(1, m.config.surface_min_count))
         m._next_id = max([t.id for t in m.tracks], default=0) + 1
         if "grid" in d:
             g = grid_from_dict(d["grid"])

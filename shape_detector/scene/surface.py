@@ -5,7 +5,8 @@ is not. :class:`SurfaceMemory` keeps the mean of the depth points that fall into
 ``voxel``-sized cube (one point per occupied voxel), over every frame, so that ray casts can
 land on the surface the camera saw (:mod:`shape_detector.ar.surface_rays`). What belongs to an
 object is decided when asked (:func:`points_in_boxes`), with the boxes of that moment, so
-points seen before a track was confirmed count too.
+points seen before a track was confirmed count too; what no box claims is the scene's
+*structure* (:func:`split_points`: walls, clutter, furniture not mapped yet).
 
 Memory is bounded: beyond ``max_voxels`` the voxels seen by the fewest points are dropped.
 """
@@ -96,6 +97,12 @@ def points_in_boxes(points: np.ndarray, boxes: Sequence[Any], pad: float = 0.05)
     """For each box (``center`` (3,), ``size`` (3,), ``rotation`` (3,3) columns = axes, world
     frame) the rows of ``points`` (M,3) inside it grown by ``pad`` m on every side; a point
     inside several boxes goes to the first (the detector's boxes seldom overlap by more)."""
+    return split_points(points, boxes, pad)[0]
+
+
+def split_points(points: np.ndarray, boxes: Sequence[Any], pad: float = 0.05) -> tuple[list[np.ndarray], np.ndarray]:
+    """:func:`points_in_boxes`, and the (K,3) rows of ``points`` that no box claims (walls,
+    clutter, furniture not mapped yet)."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     taken = np.zeros(len(p), bool)
     out = []
@@ -106,4 +113,4 @@ def points_in_boxes(points: np.ndarray, boxes: Sequence[Any], pad: float = 0.05)
         inside = near[points_in_box(p[near], b.center, np.abs(np.asarray(b.size, np.float64)), R, pad)]
         taken[inside] = True
         out.append(p[inside])
-    return out
+    return out, p[~taken]
