@@ -1,6 +1,7 @@
 """``python -m shape_detector.scene_bench``: milliseconds per SceneMap.update with 20 tracks.
 
-A generated room with 20 pieces of furniture seen from a camera walking past them at VGA;
+A generated room with 20 pieces of furniture in two rows before two walls, seen from a
+camera walking past them at VGA;
 each frame gives the map the boxes in view with noise (no network runs). Prints the mean
 and 95th percentile of: the update without depth (association, fusion, merging), the full
 update with depth (plus negative evidence, the floor and the observed surfaces), the floor
@@ -52,10 +53,12 @@ def frames(boxes, n: int, seed: int = 1):
     """Per frame: (T_world_camera, depth, detections in the camera frame)."""
     rng = np.random.default_rng(seed)
     floor = (np.array([10.0, 0.0, -0.05]), np.array([40.0, 10.0, 0.1]), 0.0)
+    # the room's walls behind the two rows: their depth points are kept as observed surfaces too
+    walls = [(np.array([10.0, y, 1.3]), np.array([40.0, 0.1, 2.6]), 0.0) for y in (-3.5, 3.5)]
     for i in range(n):
         T = _pose(0.28 * i, np.pi / 2 if i % 2 else -np.pi / 2 + 0.3)
         R, t = T[:3, :3], T[:3, 3]
-        allb = boxes + [floor]
+        allb = boxes + [floor] + walls
         depth, _, _ = rasterize(np.array([(c - t) @ R for c, _, _ in allb]), np.array([s for _, s, _ in allb]),
                                 np.array([R.T @ _rotz(y) for _, _, y in allb]), K, W, H)
         depth = depth.astype(np.float32)

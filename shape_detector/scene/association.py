@@ -77,7 +77,10 @@ def _footprint(t: Track) -> np.ndarray:
 
 def overlap(a: Track, b: Track) -> tuple[float, float]:
     """(IoU, intersection over the smaller volume) of two tracks' yaw-only boxes."""
-    inter2 = clip_convex(_footprint(a), _footprint(b))
+    fa, fb = _footprint(a), _footprint(b)
+    if np.any(fa.max(0) <= fb.min(0)) or np.any(fb.max(0) <= fa.min(0)):
+        return 0.0, 0.0  # the footprints' bounding rectangles are apart (half of the pairs tested)
+    inter2 = clip_convex(fa, fb)
     area = abs(polygon_area(inter2)) if len(inter2) >= 3 else 0.0
     if area <= 0.0:
         return 0.0, 0.0

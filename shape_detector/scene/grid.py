@@ -17,6 +17,7 @@ the world (x, y) of the outer corner of cell (row 0, col 0).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -129,6 +130,18 @@ class FloorMemory:
             out[self.row0 - r0:self.row0 - r0 + h, self.col0 - c0:self.col0 - c0 + w] = self.seen
         self.seen, self.row0, self.col0 = out, int(r0), int(c0)
 
+    def contains(self, row0: int, col0: int, shape: tuple[int, ...]) -> np.ndarray:
+        """(rows, cols) bool: which world cells of the window starting at cell (``row0``,
+        ``col0``) were seen."""
+        out = np.zeros(shape[:2], dtype=bool)
+        h, w = self.seen.shape
+        r0, c0 = max(row0, self.row0), max(col0, self.col0)
+        r1, c1 = min(row0 + shape[0], self.row0 + h), min(col0 + shape[1], self.col0 + w)
+        if r1 > r0 and c1 > c0:
+            out[r0 - row0:r1 - row0, c0 - col0:c1 - col0] = self.seen[r0 - self.row0:r1 - self.row0,
+                                                                      c0 - self.col0:c1 - self.col0]
+        return out
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray] | None:
         """World cell (row, col) range ``[lo, hi)`` of the seen cells, or None."""
         if not self.seen.any():
@@ -149,10 +162,12 @@ def floor_points(depth: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray, f
 
 
 def floor_cells_seen(depth: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray, floor_z: float,
-                     resolution: float, near_xy: np.ndarray, band: float = 0.05) -> np.ndarray:
+                     resolution: float, near_xy: np.ndarray, band: float = 0.05,
+                     known: FloorMemory | None = None) -> np.ndarray:
     """World (x, y) (N,2) of the centres of the cells around the floor points ``near_xy``
     (N,2) whose floor point projects onto a depth pixel that measures it (within ``band``
-    along the optical axis, plus 1% of the range): dense free cells from sparse samples."""
+    along the optical axis, plus 1% of the range): dense free cells from sparse samples.
+    Cells ``known`` (a memory of the same resolution) has seen already are not tested again."""
     if len(near_xy) == 0:
         return np.zeros((0, 2))
     lo = np.floor(near_xy.min(0) / resolution) - 1
@@ -160,6 +175,9 @@ def floor_cells_seen(depth: np.ndarray, K: np.ndarray, T_world_camera: np.ndarra
     xs = (np.arange(lo[0], hi[0]) + 0.5) * resolution
     ys = (np.arange(lo[1], hi[1]) + 0.5) * resolution
     gx, gy = np.meshgrid(xs, ys)
+    if known is not None and known.seen.size:
+        fresh = ~known.contains(int(lo[1]), int(lo[0]), gx.shape)
+        gx, gy = gx[fresh], gy[fresh]
     pw = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, floor_z)], axis=1)
     T = np.asarray(T_world_camera, dtype=np.float64)
     cam = (pw - T[:3, 3]) @ T[:3, :3]
@@ -174,14 +192,23 @@ def depth_points_world(depth: np.ndarray, K: np.ndarray, T_world_camera: np.ndar
                        max_range: float = 6.0) -> np.ndarray:
     """World points (N,3) of every ``stride``-th pixel with valid depth below ``max_range``."""
     d = np.asarray(depth, dtype=np.float32)[::stride, ::stride]
-    v, u = np.mgrid[0:depth.shape[0]:stride, 0:depth.shape[1]:stride]
-    ok = np.isfinite(d) & (d > 0) & (d < max_range)
+    with np.errstate(invalid="ignore"):
+        ok = (d > 0) & (d < max_range)  # NaN compares False
+    rx, ry = _pixel_rays(depth.shape, stride, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
     z = d[ok].astype(np.float64)
-    x = (u[ok] - K[0, 2]) / K[0, 0] * z
-    y = (v[ok] - K[1, 2]) / K[1, 1] * z
-    cam = np.stack([x, y, z], axis=1)
+    cam = np.stack([rx[ok] * z, ry[ok] * z, z], axis=1)
     T = np.asarray(T_world_camera, dtype=np.float64)
     return cam @ T[:3, :3].T + T[:3, 3]
+
+
+@functools.lru_cache(maxsize=8)
+def _pixel_rays(shape: tuple[int, ...], stride: int, fx: float, fy: float, cx: float,
+                cy: float) -> tuple[np.ndarray, np.ndarray]:
+    """(x / z, y / z) of the strided pixels of an image of ``shape`` (read-only, cached per camera)."""
+    v, u = np.mgrid[0:shape[0]:stride, 0:shape[1]:stride]
+    rx, ry = (u - cx) / fx, (v - cy) / fy
+    rx.flags.writeable = ry.flags.writeable = False
+    return rx, ry
 
 
 def estimate_floor_z(z: np.ndarray, bin_m: float = 0.02, min_share: float = 0.03) -> float | None:

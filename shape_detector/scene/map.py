@@ -357,8 +357,8 @@ class SceneMap:
                 self._floor_estimates.append(fz)
                 self._floor_estimates = self._floor_estimates[-200:]
         near = pts[np.abs(pts[:, 2] - self.floor_z) <= c.floor_band, :2]
-        self.floor.add(near)
-        self.floor.add(floor_cells_seen(depth, K, T, self.floor_z, c.grid_resolution, near, c.floor_band))
+        cells = floor_cells_seen(depth, K, T, self.floor_z, c.grid_resolution, near, c.floor_band, known=self.floor)
+        self.floor.add(np.concatenate([near, cells]))
         if self.surface is not None:
             self.surface.add(pts[pts[:, 2] > self.floor_z + c.floor_band])
 

@@ -13,6 +13,7 @@ import numpy as np
 from ..geometry import box_corners
 from ..types import Object3D
 from .tracks import Observation, class_probs_of, rotz
+from .visibility import unit_lattice
 
 
 def upright_box(center: np.ndarray, size: np.ndarray, R_world: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
@@ -37,8 +38,7 @@ def visible_share(center: np.ndarray, size: np.ndarray, rotation: np.ndarray, K:
     image (truncation by the border) and, with ``depth`` (metres, NaN invalid), whose pixel
     does not measure something nearer than the whole box by more than ``margin`` (occlusion
     by another object)."""
-    t = (np.arange(n) + 0.5) / n - 0.5
-    g = np.stack(np.meshgrid(t, t, t, indexing="ij"), axis=-1).reshape(-1, 3)
+    g = unit_lattice(n)
     p = (g * np.asarray(size, dtype=np.float64)) @ np.asarray(rotation, dtype=np.float64).T + np.asarray(center)
     z = p[:, 2]
     front = z > 0.1

@@ -22,6 +22,8 @@ contradicts) is seen empty; an occluded or out-of-view one never is.
 
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,11 +51,19 @@ class EmptyParams:
     lattice: int = 3
 
 
+@functools.lru_cache(maxsize=8)
+def unit_lattice(n: int) -> np.ndarray:
+    """(n**3, 3) centres of an ``n`` x ``n`` x ``n`` split of the unit cube centred at 0 (read-only)."""
+    t = (np.arange(n) + 0.5) / n - 0.5
+    g = np.stack(np.meshgrid(t, t, t, indexing="ij"), axis=-1).reshape(-1, 3)
+    g.flags.writeable = False
+    return g
+
+
 def part_samples(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]], n: int = 3) -> np.ndarray:
     """World points (P * n**3, 3) on an ``n``-lattice inside each (center, size, rotation) part
     (at the centres of an ``n`` x ``n`` x ``n`` split of the part)."""
-    t = (np.arange(n) + 0.5) / n - 0.5
-    g = np.stack(np.meshgrid(t, t, t, indexing="ij"), axis=-1).reshape(-1, 3)
+    g = unit_lattice(n)
     out = [np.asarray(c, float) + (g * np.asarray(s, float)) @ np.asarray(R, float).T for c, s, R in parts]
     return np.concatenate(out) if out else np.zeros((0, 3))
 
