@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import base64
 import json
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +29,8 @@ import numpy as np
 
 from .grid import NavGrid
 from .types import SceneObject, surface_from_dict, surface_to_dict
+
+log = logging.getLogger(__name__)
 
 
 def grid_to_dict(grid: NavGrid) -> dict[str, Any]:
@@ -63,6 +66,9 @@ def scene_to_dict(frame_id: str, stamp_ns: int, objects: list[SceneObject], grid
         pts = np.asarray(structure, float).reshape(-1, 3)
         center = np.round(0.5 * (pts.min(0) + pts.max(0)), 2)  # int16 millimetres reach 32 m either way
         keep = np.all(np.abs(pts - center) < 32.0, axis=1)
+        if not keep.all():
+            log.warning("scene JSON: %d observed points more than 32 m from the others' centre not written",
+                        int((~keep).sum()))
         d["structure"] = {"center": center.tolist(), **surface_to_dict(pts[keep], center)}
     return d
 

@@ -172,9 +172,8 @@ class Track:
         trust = 1.0 / (1.0 + (d / OUTLIER_SCALE) ** 2) if self.weight_sum >= OUTLIER_AFTER else 1.0
         a = w * trust / (w0 + w * trust)
         # spread of the faces (Welford's update with the fused box as the running mean)
-        d = self.rotation.T @ (ob.center - self.center)
-        seen = np.array([d[0] - 0.5 * size[0], d[0] + 0.5 * size[0], d[1] - 0.5 * size[1], d[1] + 0.5 * size[1]])
-        fused = 0.5 * np.array([-self.size[0], self.size[0], -self.size[1], self.size[1]])
+        R = self.rotation
+        seen, fused = _faces(ob.center, size, R, self.center), _faces(self.center, self.size, R, self.center)
         self.face_ss = self.face_ss + w * (1.0 - a) * (seen - fused) ** 2
         self.face_ss_weight += w
         self.center = self.center + a * (ob.center - self.center)
