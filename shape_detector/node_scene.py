@@ -188,14 +188,15 @@ def answer_plan(feed: SceneFeed | None, request: Any, types: Any, stamp_ns: int,
     the reason logged, when there is none."""
     from .ar import SceneQueries
     from .ar.plan_service import PlanResult, path_message, plan_request
+    from .ar.scene_data import ArScene, load_scene
 
     if feed is None:
         result = PlanResult(False, np.zeros((0, 4)), "the scene is off (publish_scene false)")
         frame = ""
     else:
         frame = feed.config.world_frame
-        with feed.lock:
-            queries = SceneQueries(feed.map)
+        with feed.lock:  # a plan needs no observed surfaces: skip the pass over them
+            queries = SceneQueries(ArScene(load_scene(feed.map.objects()).objects, feed.map.grid(), frame))
         result = plan_request(queries, request, frame, agent_radius=feed.config.inflation_radius,
                               unknown=feed.plan_unknown, uncertainty=feed.plan_uncertainty)
     if not result.ok:

@@ -19,7 +19,7 @@ import numpy as np
 
 from . import collision, planning
 from .affordances import Surface, surfaces
-from .margins import UNCERTAINTY, padded_grid
+from .margins import UNCERTAINTY
 from .rays import RayHit, RayHits, raycast, raycast_many
 from ..scene.grid import NavGrid
 from .scene_data import load_scene
@@ -77,7 +77,7 @@ class SceneQueries:
             raise ValueError("this scene has no navigation grid")
         key = (round(float(agent_radius), 6), str(unknown), round(float(uncertainty), 6))
         if key not in self._graphs:
-            grid = padded_grid(self.scene.grid, self.scene.objects, uncertainty)
+            grid = planning.planning_grid(self.scene, uncertainty)
             self._graphs[key] = planning.nav_graph(grid, agent_radius, unknown)
         return self._graphs[key]
 

@@ -23,7 +23,6 @@ contradicts) is seen empty; an occluded or out-of-view one never is.
 from __future__ import annotations
 
 import functools
-
 from dataclasses import dataclass
 
 import numpy as np
