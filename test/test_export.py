@@ -68,6 +68,15 @@ def test_glb_round_trip(tmp_path: Path) -> None:
     assert extras["dresser #3"] == {"class": "dresser", "id": 3, "score": 1.0}
 
 
+def test_class_probabilities_reach_the_node_extras(tmp_path: Path) -> None:
+    sc = _scene()
+    sc.objects[0].class_probs = {"table": 0.7, "desk": 0.25}
+    (path,) = export_scene(sc, tmp_path / "scene.glb")
+    extras = {n["name"]: n.get("extras") for n in _glb_json(path)["nodes"]}
+    assert extras["table #1"]["class_probs"] == {"table": 0.7, "desk": 0.25}
+    assert "class_probs" not in extras["dresser #3"]
+
+
 def test_no_colliders_and_gltf(tmp_path: Path) -> None:
     sc = _scene()
     (path,) = export_scene(sc, tmp_path / "scene.gltf", colliders=False)

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from shape_detector.evaluation.scene_eval import SequenceData, grid_iou, run_map, score_sequences, seen_frames
+from shape_detector.evaluation.scene_eval import (SequenceData, grid_iou, run_map, score_sequences, seen_frames,
+                                                  with_runner_up)
 from shape_detector.synth.generate import SynthConfig
 from shape_detector.synth.walkthrough import walkthrough
 from shape_detector.types import Object3D
@@ -35,6 +36,17 @@ def test_perfect_detections_give_a_perfect_map(perfect):
     assert res["jitter_cm"] < 0.5
     assert res["grid_iou"] > 0.9
     assert res["stack_mAP"]["0.25"] <= res["map_mAP"]["0.25"] + 1e-9
+
+
+def test_runner_up_copies_score_the_second_class_by_its_share():
+    from shape_detector.scene.types import SceneObject
+
+    o = SceneObject(1, "desk", 0.8, np.zeros(3), np.ones(3), np.eye(3), class_probs={"desk": 0.6, "table": 0.3,
+                                                                                    "chair": 0.1})
+    plain = SceneObject(2, "bed", 0.9, np.ones(3), np.ones(3), np.eye(3))
+    out = with_runner_up([o, plain])
+    assert [(x.class_name, round(x.score, 6)) for x in out] == [("desk", 0.8), ("table", 0.4), ("bed", 0.9)]
+    assert out[1].id == 1 and o.class_name == "desk"  # a copy; the input is unchanged
 
 
 def test_grid_iou_of_the_truth_is_one_and_of_nothing_zero(perfect):

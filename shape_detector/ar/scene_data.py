@@ -80,6 +80,7 @@ def _as_object(o: Any) -> SceneObject:
         observations=int(getattr(o, "observations", 1)), first_seen_ns=int(getattr(o, "first_seen_ns", 0)),
         last_seen_ns=int(getattr(o, "last_seen_ns", 0)), primitives=prims, surface=surface,
         face_sd=_face_sd(getattr(o, "face_sd", None)),
+        class_probs={str(k): float(v) for k, v in (getattr(o, "class_probs", None) or {}).items()},
     )
 
 

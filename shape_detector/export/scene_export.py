@@ -94,8 +94,9 @@ def build_trimesh_scene(source: Any, colliders: bool = True, y_up: bool = True) 
 
 
 def _extras(objects: dict[str, SceneObject]) -> Any:
-    """A glTF tree post-processor adding ``extras``: ``{"class", "id", "score"}`` on object nodes
-    and ``{"collider": "box", "size": [x, y, z]}`` (full size, metres) on collider boxes."""
+    """A glTF tree post-processor adding ``extras``: ``{"class", "id", "score"}`` (and
+    ``"class_probs"`` where known) on object nodes and ``{"collider": "box", "size": [x, y, z]}``
+    (full size, metres) on collider boxes."""
 
     def post(tree: dict) -> None:
         meshes = tree.get("meshes", [])
@@ -105,6 +106,8 @@ def _extras(objects: dict[str, SceneObject]) -> Any:
             if name in objects:
                 o = objects[name]
                 node["extras"] = {"class": o.class_name, "id": int(o.id), "score": round(float(o.score), 4)}
+                if o.class_probs:
+                    node["extras"]["class_probs"] = {k: round(float(v), 3) for k, v in o.class_probs.items()}
             if " collider " not in name or "mesh" not in node:
                 continue
             extras: dict[str, Any] = {"collider": "box"}

@@ -369,7 +369,8 @@ class SceneMap:
         return SceneObject(id=t.id, class_name=t.class_name, score=t.score, center=t.center.copy(),
                            size=t.size.copy(), rotation=R, yaw=t.yaw, observations=t.observations,
                            first_seen_ns=t.first_seen_ns, last_seen_ns=t.last_seen_ns, primitives=prims,
-                           face_sd=t.face_sd)
+                           face_sd=t.face_sd,
+                           class_probs={c: float(p) for c, p in zip(CLASSES, t.class_probs) if p >= 0.05})
 
 
 def disc_points(center_xy: np.ndarray, radius: float, step: float) -> np.ndarray:
@@ -398,15 +399,23 @@ def _depth_metres(depth: np.ndarray | None, K: np.ndarray | None) -> np.ndarray 
 
 
 def _track_from_object(o: SceneObject, max_weight: float) -> Track:
-    """A confirmed track standing for a published object (its class evidence one-hot)."""
-    ev = np.zeros(N_CLASSES)
-    ev[CLASSES.index(o.class_name) if o.class_name in CLASSES else 0] = 1.0
+    """A confirmed track standing for a published object: its class evidence from
+    ``class_probs`` (the classes left out share the rest evenly), else one-hot; its score as saved."""
+    ev = np.array([max(float(o.class_probs.get(c, 0.0)), 0.0) for c in CLASSES])
+    if not (np.all(np.isfinite(ev)) and 0.0 < ev.sum() <= 1.0 + 1e-3 and CLASSES[int(np.argmax(ev))] == o.class_name):
+        ev = np.zeros(N_CLASSES)
+        ev[CLASSES.index(o.class_name) if o.class_name in CLASSES else 0] = 1.0
+    missing = ev == 0.0
+    if missing.any():
+        ev[missing] = max(1.0 - ev.sum(), 0.0) / missing.sum()
+    ev = ev / ev.sum()
     n = max(int(o.observations), 1)
     w = min(float(n), max_weight)
+    consistency = 0.5 + 0.5 * float(ev.max())  # Track.score's factor, undone so the score stays as saved
     t = Track(id=int(o.id), center=np.asarray(o.center, float), size=np.asarray(o.size, float), yaw=float(o.yaw),
               class_evidence=ev * w, weight_sum=w, existence=0.0, observations=n,
               first_seen_ns=int(o.first_seen_ns), last_seen_ns=int(o.last_seen_ns),
-              score_sum=float(o.score) * n / (1.0 - np.exp(-n / 3.0)), confirmed=True)  # score kept as saved
+              score_sum=float(o.score) * n / ((1.0 - np.exp(-n / 3.0)) * consistency), confirmed=True)
     R = t.rotation
     t.prims_local = [((R.T @ (p.center - t.center)) / np.maximum(t.size, 1e-6),
                       (np.abs(R.T @ p.rotation) @ p.size) / np.maximum(t.size, 1e-6)) for p in o.primitives]

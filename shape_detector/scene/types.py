@@ -60,6 +60,9 @@ class SceneObject:
     #: (4,) how far apart the observations put the box's -x, +x, -y, +y faces (along its axes):
     #: their weighted standard deviation, metres; zeros when unknown
     face_sd: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    #: class -> probability from the accumulated class evidence (classes under 5% left out);
+    #: empty when only ``class_name`` is known
+    class_probs: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """The JSON form (``"class"`` for ``class_name``; ``"surface"`` only when there is one)."""
@@ -69,6 +72,8 @@ class SceneObject:
              "observations": int(self.observations), "first_seen_ns": int(self.first_seen_ns),
              "last_seen_ns": int(self.last_seen_ns), "primitives": [p.to_dict() for p in self.primitives],
              "face_sd": [round(float(v), 4) for v in np.asarray(self.face_sd, float).reshape(4)]}
+        if self.class_probs:
+            d["class_probs"] = {str(k): round(float(v), 3) for k, v in self.class_probs.items()}
         if self.surface is not None and len(self.surface):
             d["surface"] = surface_to_dict(self.surface, self.center)
         return d
@@ -83,7 +88,8 @@ class SceneObject:
                    last_seen_ns=int(d.get("last_seen_ns", 0)),
                    primitives=[ScenePrimitive.from_dict(p) for p in d.get("primitives", [])],
                    surface=surface_from_dict(d["surface"], d["center"]) if d.get("surface") else None,
-                   face_sd=np.asarray(d.get("face_sd", np.zeros(4)), float).reshape(4))
+                   face_sd=np.asarray(d.get("face_sd", np.zeros(4)), float).reshape(4),
+                   class_probs={str(k): float(v) for k, v in d.get("class_probs", {}).items()})
 
 
 def surface_to_dict(points: np.ndarray, center: np.ndarray) -> dict:
