@@ -53,6 +53,9 @@ def test_loader_errors(tmp_path: Path) -> None:
         load_scene(42)
     with pytest.raises(ValueError, match="objects"):
         load_scene({"frame_id": "odom"})
+    with pytest.raises(ValueError, match="mistypes"):
+        load_scene({"objects": [{"id": 1, "class": "chair", "center": [0, 0, 0.4], "size": [1, 1, 1],
+                                 "rotation": np.eye(3).tolist(), "class_probs": ["chair"]}]})
     with pytest.raises(ValueError):  # non-finite numbers are refused, not queried
         load_scene({"objects": [{"id": 1, "class": "chair", "center": [0, 0, float("nan")], "size": [1, 1, 1],
                                  "rotation": np.eye(3).tolist()}]})

@@ -102,3 +102,8 @@ def test_bad_documents_raise_clearly(tmp_path):
     doc["grid"]["width"] += 1
     with pytest.raises(ValueError, match="grid data"):
         SceneMap.from_json(doc)
+    for field, bad in (("center", None), ("class_probs", ["desk"]), ("size", [1.0, 2.0])):
+        doc = _map().to_json()
+        doc["objects"][0][field] = bad
+        with pytest.raises(ValueError, match="object 0"):
+            SceneMap.from_json(doc)

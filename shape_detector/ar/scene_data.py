@@ -213,7 +213,7 @@ def load_scene(source: Any) -> ArScene:
             structure = structure_from_dict(source)
             return ArScene(objects, grid, str(source.get("frame_id", "odom")),
                            structure=structure if len(structure) else None)
-        except (KeyError, TypeError) as e:
+        except (KeyError, TypeError, AttributeError) as e:
             raise ValueError(f"scene JSON lacks or mistypes a field: {e}") from None
     if hasattr(source, "objects") and callable(source.objects):
         from ..scene.map import SceneMap

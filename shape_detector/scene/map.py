@@ -227,8 +227,11 @@ class SceneMap:
 
         m = cls(replace(config or SceneConfig(), world_frame=str(d["frame_id"])))
         m.stamp_ns = int(d.get("stamp_ns", 0))
-        for o in d["objects"]:
-            obj = SceneObject.from_dict(o)
+        for i, o in enumerate(d["objects"]):
+            try:
+                obj = SceneObject.from_dict(o)
+            except (KeyError, TypeError, ValueError, AttributeError) as e:
+                raise ValueError(f"scene JSON object {i} lacks or mistypes a field: {e!r}") from None
             m.tracks.append(_track_from_object(obj, m.config.max_weight))
             if obj.surface is not None and m.surface is not None:  # saved points passed the count test
                 m.surface.add(obj.surface, weight=max(1, m.config.surface_min_count))
