@@ -72,6 +72,16 @@ def test_cli_gt_map(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     assert json.loads(out.read_text())["mean"]["collide_recall"] == 1.0
 
 
+def test_cli_takes_the_detector_flags(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    p = argparse.ArgumentParser()
+    ar_cli.configure_parser(p)
+    args = p.parse_args(["--seeds", "5", "--frames", "2", "--weights", str(tmp_path / "missing.pt")])
+    assert ar_cli.main(args) == 2
+    assert "missing.pt" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        p.parse_args(["--max-objects", "0"])  # refused with the reason, as the node's parameters are
+
+
 @pytest.mark.slow
 def test_detector_map_pipeline(tmp_path: Path) -> None:
     from shape_detector.evaluation.ar_eval import evaluate_walkthrough

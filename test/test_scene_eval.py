@@ -68,9 +68,11 @@ def test_cli_runs_and_prints_json(monkeypatch, capsys):
     import shape_detector.detector as det_mod
     from shape_detector.evaluation import scene_cli
 
+    seen = []
+
     class Fake:
-        def __init__(self, *a, **kw):
-            pass
+        def __init__(self, config=None, **kw):
+            seen.append(config)
 
         def detect(self, rgb, depth, K, up=None):
             return []
@@ -78,8 +80,10 @@ def test_cli_runs_and_prints_json(monkeypatch, capsys):
     monkeypatch.setattr(det_mod, "ShapeDetector", Fake)
     p = argparse.ArgumentParser()
     scene_cli.configure_parser(p)
-    args = p.parse_args(["--sequences", "1", "--frames", "3", "--width", "96", "--height", "72", "--json", "--quiet"])
+    args = p.parse_args(["--sequences", "1", "--frames", "3", "--width", "96", "--height", "72", "--json", "--quiet",
+                         "--weights", "candidate.pt", "--max-objects", "5"])
     assert scene_cli.main(args) == 0
+    assert seen[0].weights == "candidate.pt" and seen[0].max_objects == 5 and seen[0].precision == "auto"
     res = json.loads(capsys.readouterr().out)
     assert res["sequences"] == 1 and res["tracks"] == 0
     assert set(res["map_mAP"]) == {"0.25", "0.5"}

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..config_cli import add_detector_flags, config_from_args
+
 #: metric -> acceptance threshold (issue #27)
 THRESHOLDS = {"ray_within_5cm": 0.90, "collide_precision": 0.90, "collide_recall": 0.90, "plan_found": 0.95,
               "plan_clear": 1.0}
@@ -42,6 +44,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--agent-radius", type=float, default=0.2, help="planning agent radius (m)")
     p.add_argument("--json", default=None, help="also write the per-sequence and mean metrics here")
     p.add_argument("--save-maps", default=None, help="directory for the detector's maps (map_<seed>.json)")
+    add_detector_flags(p, "realtime")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -51,13 +54,22 @@ def main(args: argparse.Namespace) -> int:
     if args.frames < 1 or not args.seeds:
         print("evaluate-ar: need at least one seed and one frame", file=sys.stderr)
         return 2
+    detector = None
+    if not args.gt_map:
+        from ..detector import ShapeDetector
+
+        try:
+            detector = ShapeDetector(config_from_args(args))
+        except (FileNotFoundError, ValueError) as e:
+            print(f"evaluate-ar: {e}", file=sys.stderr)
+            return 2
     rows = []
     if args.save_maps:
         Path(args.save_maps).mkdir(parents=True, exist_ok=True)
     for seed in args.seeds:
         t0 = time.perf_counter()
         save = str(Path(args.save_maps) / f"map_{seed}.json") if args.save_maps and not args.gt_map else None
-        r = evaluate_walkthrough(seed, args.frames, args.width, args.height, use_gt_map=args.gt_map,
+        r = evaluate_walkthrough(seed, args.frames, args.width, args.height, detector=detector, use_gt_map=args.gt_map,
                                  n_rays=args.rays, n_points=args.points, n_pairs=args.pairs, radius=args.radius,
                                  agent_radius=args.agent_radius, save_map=save)
         rows.append(r)

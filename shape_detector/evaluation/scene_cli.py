@@ -13,6 +13,8 @@ import json
 import sys
 from typing import Any
 
+from ..config_cli import add_detector_flags, config_from_args
+
 #: metric key, label, target text, format
 ROWS = (
     ("mAP@0.25", "map mAP@0.25", ">= 90", "{:.1f}"),
@@ -37,12 +39,11 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--height", type=int, default=480, help="image height (default 480)")
     p.add_argument("--min-frames", type=int, default=3,
                    help="ground truth: objects seen in at least this many frames (default 3)")
-    p.add_argument("--preset", default="realtime", choices=("realtime", "accurate"),
-                   help="detector preset (default realtime, what ShapeDetector() runs)")
     p.add_argument("--confirm-observations", type=int, default=None, help="SceneConfig.confirm_observations")
     p.add_argument("--delete-misses", type=int, default=None, help="SceneConfig.delete_misses")
     p.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
     p.add_argument("--quiet", action="store_true", help="no per-sequence progress")
+    add_detector_flags(p, "realtime")
 
 
 def _config(args: argparse.Namespace) -> Any:
@@ -83,7 +84,7 @@ def main(args: argparse.Namespace) -> int:
     from .scene_eval import collect, score_sequences
 
     try:
-        detector = ShapeDetector(preset=args.preset)
+        detector = ShapeDetector(config_from_args(args))
         config = _config(args)
     except (FileNotFoundError, ValueError) as e:
         print(f"shape-detector evaluate-scene: {e}", file=sys.stderr)
