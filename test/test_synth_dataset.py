@@ -42,3 +42,24 @@ def test_clean_depth_within_1mm(tmp_path):
     ref = generate_frame(frame_seed(2, 0), cfg)
     ok = np.isfinite(ref.depth) & (ref.depth < 65.0)
     assert np.nanmax(np.abs(got.depth[ok] - ref.depth[ok])) <= 0.0005 + 1e-6
+
+
+def test_workers_start_in_a_process_that_ran_opencv_threads(tmp_path):
+    """The training runner generates a missing data set after cutting frustums with OpenCV's
+    thread pool running; forked workers hung there (in cv2.setNumThreads), spawned ones do not."""
+    import subprocess
+    import sys
+
+    code = (
+        "import numpy as np, cv2, sys\n"
+        "from shape_detector.synth.dataset import write_shards\n"
+        "from shape_detector.synth.generate import SynthConfig\n"
+        "img = np.random.rand(1500, 1500).astype(np.float32)\n"
+        "for _ in range(3):\n"
+        "    cv2.GaussianBlur(img, (31, 31), 5)\n"
+        "write_shards(sys.argv[1], 4, seed=3, frames_per_shard=2, workers=2, config=SynthConfig(width=64, height=48),"
+        " quiet=True)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert count_frames(tmp_path) == 4

@@ -20,7 +20,6 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import os
-import sys
 import time
 from collections.abc import Iterator
 from dataclasses import asdict
@@ -117,7 +116,8 @@ def _shard_job(args: tuple) -> tuple[int, int, float]:
 def write_shards(out_dir: str | Path, num_frames: int, seed: int = 0, frames_per_shard: int = 256,
                  workers: int = 2, config: SynthConfig | None = None, rgb_format: str = "png",
                  quiet: bool = False) -> dict:
-    """Generate ``num_frames`` frames into shards under ``out_dir`` with ``workers`` processes.
+    """Generate ``num_frames`` frames into shards under ``out_dir`` with ``workers`` processes
+    (spawned: from a script, call it under ``if __name__ == "__main__":``).
 
     Prints one progress line per finished shard and the overall frames/s; returns the index dict.
     """
@@ -134,7 +134,10 @@ def write_shards(out_dir: str | Path, num_frames: int, seed: int = 0, frames_per
         results = map(_shard_job, jobs)
         pool = None
     else:
-        ctx = mp.get_context("fork" if sys.platform.startswith("linux") else "spawn")
+        # spawn, not fork: a process that already ran OpenCV's (or torch's) thread pool, as
+        # the training runner has when it generates a missing data set after cutting frustums,
+        # forks children that hang in cv2.setNumThreads on the pool's copied condition variable
+        ctx = mp.get_context("spawn")
         pool = ctx.Pool(min(workers, n_shards))
         results = pool.imap_unordered(_shard_job, jobs)
     try:
