@@ -11,7 +11,9 @@ Topics (relative, remap them):
   the colour image's stamp and frame), where vision_msgs is importable ``~/detections``
   (vision_msgs/Detection3DArray); with ``publish_scene``: ``~/scene`` (MarkerArray) and
   ``~/map`` (nav_msgs/OccupancyGrid) in ``world_frame`` each processed frame, ``~/surfaces``
-  (MarkerArray, when they change) and the service ``~/get_plan`` (nav_msgs/srv/GetPlan).
+  (MarkerArray, when they change), the service ``~/get_plan`` (nav_msgs/srv/GetPlan) and,
+  where std_srvs is installed, ``~/save_scene`` (std_srvs/srv/Trigger: the map as JSON to
+  ``scene_out``; also every ``scene_save_period`` and at shutdown; ``scene_in`` continues one).
 
 Image and depth (and external detections) are paired by
 :class:`~shape_detector.sync.ApproximateTimeSynchronizer`; sets go to
@@ -180,9 +182,50 @@ class DetectorNode(NodeCore, Node):
         from nav_msgs.srv import GetPlan
 
         self.plan_srv = self.create_service(GetPlan, "~/get_plan", self._on_get_plan)
+        self._start_scene_files(feed)
         self._surfaces_key: Any = None
         self._surfaces_at = -float("inf")  # monotonic time of the last ~/surfaces
         return feed
+
+    def _start_scene_files(self, feed: SceneFeed) -> None:
+        """``scene_in`` loaded into ``feed``; ``~/save_scene`` (where std_srvs is installed) and
+        the periodic save to ``scene_out``."""
+        p = self.p
+        if p["scene_in"]:
+            try:
+                n = feed.load(p["scene_in"])
+                self.get_logger().info(f"scene: continuing {p['scene_in']} ({n} objects)")
+            except (OSError, ValueError) as e:
+                self.warn("scene_in", f"scene_in {p['scene_in']}: {e}: starting a fresh map", period=float("inf"),
+                          level="error")
+        try:
+            from std_srvs.srv import Trigger
+        except ImportError:
+            self.warn("no_std_srvs", "std_srvs is not installed: no ~/save_scene service", period=float("inf"))
+        else:
+            self.save_srv = self.create_service(Trigger, "~/save_scene", self._on_save_scene)
+        if p["scene_out"] and p["scene_save_period"] > 0:
+            self.save_timer = self.create_timer(float(p["scene_save_period"]), lambda: self.save_scene(False))
+
+    def save_scene(self, always: bool = True) -> tuple[bool, str]:
+        """Write the map to ``scene_out`` (``always``: even when unchanged since the last save);
+        ``(written, what happened)``. Failures are logged, never raised."""
+        path = self.p["scene_out"]
+        if self.scene is None or not path:
+            return False, "no scene_out set" if self.scene is not None else "the scene is off (publish_scene false)"
+        if not always and self.scene.version == self.scene.saved_version:
+            return False, "unchanged"
+        try:
+            n = self.scene.save(path)
+        except (OSError, ValueError, TypeError) as e:
+            self.warn("scene_out", f"cannot write scene_out {path}: {type(e).__name__}: {e}", level="error")
+            return False, f"{type(e).__name__}: {e}"
+        return True, f"{n} objects written to {path}"
+
+    def _on_save_scene(self, request: Any, response: Any) -> Any:
+        """std_srvs/srv/Trigger: write the map to ``scene_out`` now."""
+        response.success, response.message = self.save_scene(True)
+        return response
 
     def _publish_scene(self, scene: SceneFeed, stamp: int) -> None:
         """~/scene and ~/map (each processed frame), ~/surfaces when they changed, at most every
@@ -246,8 +289,13 @@ class DetectorNode(NodeCore, Node):
             self.warn("scene", f"cannot publish the scene: {type(e).__name__}: {e}", level="error")
 
     def destroy_node(self) -> None:
-        """Stop the worker threads, then destroy the node."""
+        """Stop the worker threads, write the map to ``scene_out`` if it changed since the last
+        save, then destroy the node."""
         self.stop()
+        if self.scene is not None and self.p["scene_out"]:
+            written, what = self.save_scene(False)
+            if written:
+                self.get_logger().info(f"scene: {what}")
         super().destroy_node()
 
 

@@ -78,6 +78,12 @@ class NodeConfig:
                                               "frames", range=(1, 1000))
     scene_delete_misses: int = setting(3, "a tracked object is removed after this many frames that see its space "
                                        "empty", range=(1, 1000))
+    scene_in: str = setting("", "scene JSON to continue at start (written by scene_out or replay --scene-out, in "
+                            "world_frame, e.g. a robot's map frame); empty = start a fresh map")
+    scene_out: str = setting("", "file the scene map is written to as JSON (atomically) by ~/save_scene, every "
+                             "scene_save_period and at shutdown; empty = none")
+    scene_save_period: float = setting(0.0, "with scene_out: write the map every this many seconds when it changed "
+                                       "(0 = only on ~/save_scene and at shutdown), s", range=(0.0, 86400.0))
 
 
 #: name -> Spec of every node parameter: the detector's settings (realtime preset), then the node's own

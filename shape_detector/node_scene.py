@@ -19,12 +19,14 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .poses import CameraPoseSource, TransformLookupError
 from .scene import NavGrid, SceneConfig, SceneMap, SceneObject
+from .scene.json_io import write_json
 
 #: surfaces are recomputed when an object moves or grows by about this much, m
 SURFACE_KEY_STEP = 0.02
@@ -94,6 +96,7 @@ class SceneFeed:
         self.posed = False  # the map holds world-frame data
         self.static_updates = 0  # updates made without a pose (auto / none)
         self.version = 0  # bumped by every map update
+        self.saved_version = 0  # the version last written by save()
 
     # --- input (executor thread) ------------------------------------------------------------
     def add_pose(self, kind: str, msg: Any) -> None:
@@ -168,6 +171,27 @@ class SceneFeed:
         them (for ``ArScene.observed``), or None when it keeps none."""
         with self.lock:
             return self.map.observed_surfaces()
+
+    def save(self, path: str | Path) -> int:
+        """Write the map as scene JSON to ``path`` (atomically); returns its number of objects.
+        The map is serialised under the lock, written outside it."""
+        with self.lock:
+            doc, version = self.map.to_json(), self.version
+        write_json(path, doc)
+        self.saved_version = version
+        return len(doc["objects"])
+
+    def load(self, path: str | Path) -> int:
+        """Continue the map saved at ``path`` (its objects, free floor and observed surfaces);
+        returns its number of objects. ValueError when the file is not a scene map or is in
+        another frame than ``world_frame``."""
+        m = SceneMap.from_json(path, self.config)
+        if m.frame_id != self.config.world_frame:
+            raise ValueError(f"{path} is a map in frame {m.frame_id!r}, this node's world_frame is "
+                             f"{self.config.world_frame!r}")
+        self.set_map(m)
+        self.saved_version = self.version
+        return len(m.objects())
 
     def set_map(self, scene: SceneMap) -> None:
         """Replace the map (a loaded one, or a test's) and treat it as world-frame data."""

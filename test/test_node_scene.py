@@ -193,3 +193,19 @@ def test_a_pose_arriving_after_the_frame_is_waited_for_up_to_pose_timeout(timeou
     ok = feed.update([chair()], floor_depth(), K, 2 * 10**8, "cam", None)
     late.join()
     assert ok is (timeout > 0) and time.monotonic() - t0 < 0.9
+
+
+def test_feed_saves_and_continues_a_map(tmp_path):
+    feed = SceneFeed(params(), Warnings())
+    feed.set_map(_free_grid_map())
+    out = tmp_path / "scene.json"
+    assert feed.version != feed.saved_version
+    assert feed.save(out) == len(feed.snapshot()[0])
+    assert feed.version == feed.saved_version and not list(tmp_path.glob("*.tmp"))
+    again = SceneFeed(params(), Warnings())
+    assert again.load(out) == len(feed.snapshot()[0]) and again.version == again.saved_version
+    np.testing.assert_array_equal(again.snapshot()[1].data, feed.snapshot()[1].data)
+    with pytest.raises(ValueError, match="world_frame"):
+        SceneFeed(params(world_frame="map"), Warnings()).load(out)
+    with pytest.raises(OSError):
+        again.load(tmp_path / "missing.json")

@@ -143,3 +143,46 @@ def test_get_plan_answers_on_the_grid(scene_node):
     np.testing.assert_allclose(xy[0], [0.5, 0.5], atol=0.05)
     np.testing.assert_allclose(xy[-1], [3.5, 0.5], atol=0.05)
     assert xy[:, 1].max() > 1.5  # through the gap
+
+
+def test_save_scene_service_shutdown_save_and_scene_in(ros_context, tmp_path):
+    pytest.importorskip("std_srvs.srv")
+    from std_srvs.srv import Trigger
+
+    from ar_scenes import box_object
+
+    out = tmp_path / "scene.json"
+    name = "sd_files"
+    params = [Parameter("pose_source", value="none"), Parameter("stats_period", value=0.0),
+              Parameter("scene_out", value=str(out))]
+    node = DetectorNode(name, context=ros_context, detector=ChairDetector(), parameter_overrides=params)
+    test = rclpy.create_node(f"{name}_tester", context=ros_context)
+    client = test.create_client(Trigger, f"/{name}/save_scene")
+    shelf = box_object(7, "bookshelf", (2.0, 0.75, 0.5), (0.2, 1.5, 1.0))
+    grid = NavGrid(0.05, np.zeros(2), np.zeros((40, 80), np.int8))
+    with spinning(ros_context, (node, test)):  # destroys the nodes on exit
+        node.scene.set_map(SceneMap.from_json(scene_to_dict("odom", 5, [shelf], grid)))
+        assert client.wait_for_service(timeout_sec=5.0)
+        fut = client.call_async(Trigger.Request())
+        assert wait_for(fut.done, 10.0)
+        assert fut.result().success and "1 objects" in fut.result().message
+        saved = SceneMap.from_json(out)
+        assert [(o.id, o.class_name) for o in saved.objects()] == [(7, "bookshelf")]
+        # a change after the call is written at shutdown
+        node.scene.set_map(SceneMap.from_json(scene_to_dict("odom", 6, [], grid)))
+    assert SceneMap.from_json(out).objects() == [] and SceneMap.from_json(out).stamp_ns == 6
+    # scene_in continues a saved map; one in another frame is refused and a fresh map started
+    SceneMap.from_json(scene_to_dict("odom", 9, [shelf], grid)).save_json(out)
+    again = DetectorNode(f"{name}_2", context=ros_context, detector=ChairDetector(),
+                         parameter_overrides=[*params[:2], Parameter("scene_in", value=str(out))])
+    try:
+        assert [o.id for o in again.scene.snapshot()[0]] == [7]
+    finally:
+        again.destroy_node()
+    SceneMap.from_json(scene_to_dict("map", 9, [shelf], grid)).save_json(out)
+    other = DetectorNode(f"{name}_3", context=ros_context, detector=ChairDetector(),
+                         parameter_overrides=[*params[:2], Parameter("scene_in", value=str(out))])
+    try:
+        assert other.scene.snapshot()[0] == []
+    finally:
+        other.destroy_node()

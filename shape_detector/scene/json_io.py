@@ -8,6 +8,7 @@
                   "first_seen_ns", "last_seen_ns",
                   "primitives": [{"center": [3], "size": [3], "rotation": [[3x3]]}],
                   "face_sd": [4] (spread of the observed -x, +x, -y, +y faces, m; optional),
+                  "class_probs": {class: probability} (classes under 5% left out; optional),
                   "surface" (optional): {"encoding": "base64-int16-mm-from-center", "count",
                                "data": observed surface points, x y z int16 mm from "center"}}],
      "grid": {"resolution", "origin": [x, y], "width", "height", "floor_z",
@@ -22,6 +23,7 @@ from __future__ import annotations
 import base64
 import json
 import logging
+import os
 from pathlib import Path
 from typing import Any
 
@@ -83,6 +85,15 @@ def structure_from_dict(d: dict[str, Any]) -> np.ndarray:
         return surface_from_dict(s, np.asarray(s["center"], float).reshape(3))
     except (KeyError, TypeError) as e:
         raise ValueError(f"scene JSON 'structure' lacks or mistypes a field: {e}") from None
+
+
+def write_json(path: str | Path, doc: dict[str, Any]) -> None:
+    """Write ``doc`` to ``path`` atomically (a temporary file beside it, renamed), so that a
+    reader never sees a half-written map."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(doc), encoding="utf-8")
+    os.replace(tmp, path)
 
 
 def load_dict(path_or_dict: str | Path | dict[str, Any]) -> dict[str, Any]:

@@ -37,7 +37,7 @@ from ..classes import CLASSES
 from ..types import Object3D
 from .association import associate, class_similarity, cost_matrix, duplicate_pairs, overlap
 from .grid import FloorMemory, NavGrid, build_grid, depth_points_world, estimate_floor_z, floor_cells_seen
-from .json_io import grid_from_dict, load_dict, scene_to_dict, structure_from_dict
+from .json_io import grid_from_dict, load_dict, scene_to_dict, structure_from_dict, write_json
 from .observe import to_observation
 from .surface import SurfaceMemory, split_points
 from .tracks import N_CLASSES, Observation, Track
@@ -213,10 +213,8 @@ class SceneMap:
         return scene_to_dict(self.frame_id, self.stamp_ns, objects, self.grid(), structure)
 
     def save_json(self, path: str | Path) -> None:
-        """Write :meth:`to_json` to ``path``."""
-        import json
-
-        Path(path).write_text(json.dumps(self.to_json()), encoding="utf-8")
+        """Write :meth:`to_json` to ``path`` (atomically: readers never see half a file)."""
+        write_json(path, self.to_json())
 
     @classmethod
     def from_json(cls, path_or_dict: str | Path | dict[str, Any], config: SceneConfig | None = None) -> SceneMap:
