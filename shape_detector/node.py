@@ -13,7 +13,8 @@ Topics (relative, remap them):
   ``~/map`` (nav_msgs/OccupancyGrid) in ``world_frame`` each processed frame, ``~/surfaces``
   (MarkerArray, when they change), the service ``~/get_plan`` (nav_msgs/srv/GetPlan) and,
   where std_srvs is installed, ``~/save_scene`` (std_srvs/srv/Trigger: the map as JSON to
-  ``scene_out``; also every ``scene_save_period`` and at shutdown; ``scene_in`` continues one).
+  ``scene_out``; also every ``scene_save_period`` and at shutdown; ``scene_in`` continues one)
+  and ``~/clear_scene`` (Trigger: start an empty map).
 
 Image and depth (and external detections) are paired by
 :class:`~shape_detector.sync.ApproximateTimeSynchronizer`; sets go to
@@ -201,9 +202,11 @@ class DetectorNode(NodeCore, Node):
         try:
             from std_srvs.srv import Trigger
         except ImportError:
-            self.warn("no_std_srvs", "std_srvs is not installed: no ~/save_scene service", period=float("inf"))
+            self.warn("no_std_srvs", "std_srvs is not installed: no ~/save_scene and ~/clear_scene services",
+                      period=float("inf"))
         else:
             self.save_srv = self.create_service(Trigger, "~/save_scene", self._on_save_scene)
+            self.clear_srv = self.create_service(Trigger, "~/clear_scene", self._on_clear_scene)
         if p["scene_out"] and p["scene_save_period"] > 0:
             self.save_timer = self.create_timer(float(p["scene_save_period"]), lambda: self.save_scene(False))
 
@@ -225,6 +228,17 @@ class DetectorNode(NodeCore, Node):
     def _on_save_scene(self, request: Any, response: Any) -> Any:
         """std_srvs/srv/Trigger: write the map to ``scene_out`` now."""
         response.success, response.message = self.save_scene(True)
+        return response
+
+    def _on_clear_scene(self, request: Any, response: Any) -> Any:
+        """std_srvs/srv/Trigger: forget every object, the floor and the observed surfaces."""
+        if self.scene is None:  # the service exists only with the scene
+            response.success, response.message = False, "the scene is off (publish_scene false)"
+            return response
+        n = len(self.scene.snapshot()[0])
+        self.scene.clear()
+        self.get_logger().info(f"scene: cleared ({n} objects forgotten)")
+        response.success, response.message = True, f"cleared {n} objects"
         return response
 
     def _publish_scene(self, scene: SceneFeed, stamp: int) -> None:

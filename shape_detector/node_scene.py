@@ -193,6 +193,10 @@ class SceneFeed:
         self.saved_version = self.version
         return len(m.objects())
 
+    def clear(self) -> None:
+        """Start a fresh, empty map (same settings and world frame)."""
+        self.set_map(SceneMap(self.config))
+
     def set_map(self, scene: SceneMap) -> None:
         """Replace the map (a loaded one, or a test's) and treat it as world-frame data."""
         with self.lock:

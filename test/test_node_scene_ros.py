@@ -168,7 +168,12 @@ def test_save_scene_service_shutdown_save_and_scene_in(ros_context, tmp_path):
         assert fut.result().success and "1 objects" in fut.result().message
         saved = SceneMap.from_json(out)
         assert [(o.id, o.class_name) for o in saved.objects()] == [(7, "bookshelf")]
-        # a change after the call is written at shutdown
+        clear = test.create_client(Trigger, f"/{name}/clear_scene")
+        assert clear.wait_for_service(timeout_sec=5.0)
+        fut = clear.call_async(Trigger.Request())
+        assert wait_for(fut.done, 10.0) and fut.result().message == "cleared 1 objects"
+        assert node.scene.snapshot()[0] == []
+        # a change after the save is written at shutdown
         node.scene.set_map(SceneMap.from_json(scene_to_dict("odom", 6, [], grid)))
     assert SceneMap.from_json(out).objects() == [] and SceneMap.from_json(out).stamp_ns == 6
     # scene_in continues a saved map; one in another frame is refused and a fresh map started
