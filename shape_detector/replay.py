@@ -35,7 +35,8 @@ from .node_params import NodeConfig
 from .settings import specs
 
 #: the scene map's settings, shared with the node (its parameters of these names)
-SCENE_SETTINGS = ("grid_resolution", "inflation_radius", "scene_confirm_observations", "scene_delete_misses")
+SCENE_SETTINGS = ("grid_resolution", "inflation_radius", "scene_confirm_observations", "scene_delete_misses",
+                  "scene_in")
 
 
 def _check_device_flag(p: argparse.ArgumentParser) -> None:
@@ -48,13 +49,13 @@ def _check_device_flag(p: argparse.ArgumentParser) -> None:
 
 
 def scene_options(args: argparse.Namespace) -> SceneOptions | None:
-    """The scene the flags ask for; None when none of ``--scene-out``, ``--world-frame``,
-    ``--odom-topic``, ``--pose-topic`` is given."""
-    if not (args.scene_out or args.world_frame or args.odom_topic or args.pose_topic):
+    """The scene the flags ask for; None when none of ``--scene-out``, ``--scene-in``,
+    ``--world-frame``, ``--odom-topic``, ``--pose-topic`` is given."""
+    if not (args.scene_out or args.scene_in or args.world_frame or args.odom_topic or args.pose_topic):
         return None
     from .node_scene import scene_config
 
-    return SceneOptions(world_frame=args.world_frame or "odom", scene_out=args.scene_out,
+    return SceneOptions(world_frame=args.world_frame or "odom", scene_out=args.scene_out, scene_in=args.scene_in or None,
                         odom_topic=args.odom_topic, pose_topic=args.pose_topic,
                         config=scene_config({**{k: getattr(args, k) for k in SCENE_SETTINGS}, "world_frame": "odom"}))
 

@@ -151,3 +151,31 @@ def test_scene_out_must_be_a_file_outside_the_input(walk_bag, tmp_path):
         replay_bag(walk_bag, tmp_path / "out", GTDetector(walk_bag), progress=False,
                    scene=SceneOptions(scene_out=walk_bag / "scene.json"))
     assert not (tmp_path / "out").exists() and not (walk_bag / "scene.json").exists()
+
+
+def test_scene_in_continues_a_saved_map(walk_bag, tmp_path):
+    first = tmp_path / "first.json"
+    replay_bag(walk_bag, tmp_path / "o1", GTDetector(walk_bag), progress=False, scene=SceneOptions(scene_out=first))
+    before = json.loads(first.read_text())["objects"]
+    assert before
+    second = tmp_path / "second.json"
+
+    class Nothing:
+        def detect(self, rgb, depth, K, boxes2d=None, up=None):
+            return []
+
+    # the same walk again with no detections: the continued map keeps its objects and ids
+    s = replay_bag(walk_bag, tmp_path / "o2", Nothing(), progress=False,
+                   scene=SceneOptions(scene_out=second, scene_in=first))
+    assert s.scene.frames == FRAMES
+    after = json.loads(second.read_text())["objects"]
+    assert {o["id"] for o in after} == {o["id"] for o in before}
+    with pytest.raises(ValueError, match="frame 'odom'"):
+        replay_bag(walk_bag, tmp_path / "o3", Nothing(), progress=False,
+                   scene=SceneOptions(world_frame="map", scene_in=first))
+    with pytest.raises(ValueError, match="--scene-in"):
+        replay_bag(walk_bag, tmp_path / "o4", Nothing(), progress=False,
+                   scene=SceneOptions(scene_in=tmp_path / "missing.json"))
+    p = argparse.ArgumentParser()
+    configure_parser(p)
+    assert str(scene_options(p.parse_args(["bag", "-o", "o", "--scene-in", str(first)])).scene_in) == str(first)

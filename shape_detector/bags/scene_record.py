@@ -30,6 +30,8 @@ class SceneOptions:
 
     world_frame: str = "odom"
     scene_out: str | Path | None = None
+    #: a saved map (scene JSON in ``world_frame``) to continue instead of starting empty
+    scene_in: str | Path | None = None
     odom_topic: str | None = None
     pose_topic: str | None = None
     #: the map's own settings (the node's grid_resolution, inflation_radius,
@@ -115,6 +117,21 @@ def check_scene_out(in_path: str | Path, scene_out: str | Path | None) -> None:
     check_output_path(in_path, path)
 
 
+def continued_map(path: str | Path, config: SceneConfig) -> Any:
+    """The map saved at ``path`` to continue, with ``config``; ``ValueError`` when it cannot
+    be read or lies in another frame than ``config.world_frame``."""
+    from ..scene import SceneMap
+
+    try:
+        m = SceneMap.from_json(path, config)
+    except (OSError, ValueError) as e:
+        raise ValueError(f"--scene-in {str(path)!r}: {e}") from None
+    if m.frame_id != config.world_frame:
+        raise ValueError(f"--scene-in {str(path)!r} is a map in frame {m.frame_id!r}, not the world frame "
+                         f"{config.world_frame!r} (--world-frame)")
+    return m
+
+
 class SceneRecorder:
     """Feeds a :class:`~shape_detector.scene.SceneMap` per replayed frame and writes its messages."""
 
@@ -125,8 +142,8 @@ class SceneRecorder:
         self.opts = opts
         self.poses, source = load_poses(in_path, opts)
         self.stats = SceneStats(world_frame=opts.world_frame, pose_source=source)
-        base = opts.config or SceneConfig()
-        self.map = SceneMap(replace(base, world_frame=opts.world_frame))
+        base = replace(opts.config or SceneConfig(), world_frame=opts.world_frame)
+        self.map = SceneMap(base) if not opts.scene_in else continued_map(opts.scene_in, base)
         if self.poses is None and log is not None:
             log(f"scene: no camera pose in the bag, {source}")
 
