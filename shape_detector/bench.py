@@ -49,6 +49,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", default="auto", choices=("auto", "onnxruntime", "torch"),
                    help="network, pipeline: inference runtime (auto: onnxruntime when installed)")
     p.add_argument("--weights", default=None, help="weights for network/pipeline/node (default: packaged)")
+    p.add_argument("--device", default=None,
+                   help="network, pipeline: compute device (cpu, cuda, cuda:N, auto; default: the realtime preset's)")
     p.add_argument("--no-classifier", action="store_true", help="pipeline: without the proposal classifier")
     p.add_argument("--no-refine", action="store_true", help="pipeline: without the class-given second pass")
     p.add_argument("--no-free-space", action="store_true", help="pipeline: without free-space carving")
@@ -113,6 +115,7 @@ def bench_pipeline(
     peer: bool = True,
     against: str | None = None,
     processes: int = 2,
+    device: str | None = None,
 ) -> dict:
     """Median / p95 ms per VGA frame of serial ``ShapeDetector.detect`` (the realtime preset;
     arguments that are not None change its settings) with GT boxes (``gt_boxes``), with 10
@@ -128,13 +131,13 @@ def bench_pipeline(
     overrides = dict(
         precision=precision, weights=weights, score_threshold=score_threshold, num_threads=threads, workers=workers,
         max_objects=max_objects, classifier=None if classifier else False, refine=refine, trace=trace,
-        free_space=free_space, backend=backend,
+        free_space=free_space, backend=backend, device=device,
     )
     det = ShapeDetector(**{k: v for k, v in overrides.items() if v is not None})
     scenes = _pipeline_frames(frames, data)
     det.warm_up()  # as the node does at start: the network's graphs are traced
     cfg = det.config
-    print(f"pipeline: {len(scenes)} VGA frames, backend {det.predictor.backend}, precision {det.predictor.precision}, "
+    print(f"pipeline: {len(scenes)} VGA frames, backend {det.predictor.backend} on {det.predictor.device}, precision {det.predictor.precision}, "
           f"max_objects {cfg.max_objects}, workers {det.predictor.workers} ({cfg.workers or 'auto'}), threads {cfg.num_threads}, "
           f"score_threshold {cfg.score_threshold}; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs",
           flush=True)
@@ -326,6 +329,7 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
         return bench_network(
             weights=args.weights, threads=1 if args.threads is None else args.threads, workers=args.workers or 1,
             precision=args.precision or "fp32", trace=not args.no_trace, backend=args.backend,
+            device=args.device or "cpu",
         )
     if target == "proposals":
         from .proposals.bench import bench_proposals
@@ -338,6 +342,7 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
             refine=not args.no_refine, pipeline_split=args.pipeline_split, trace=not args.no_trace,
             free_space=not args.no_free_space, backend=args.backend, score_threshold=args.score_threshold,
             data=args.data, peer=not args.no_peer, against=args.against, processes=args.processes,
+            device=args.device,
         )
     if target == "node":
         from .node_bench import bench_node

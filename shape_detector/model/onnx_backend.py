@@ -40,10 +40,12 @@ def ort_available() -> bool:
     return True
 
 
-def resolve_backend(backend: str = "auto", precision: str = "fp32", trace: bool = True) -> str:
+def resolve_backend(backend: str = "auto", precision: str = "fp32", trace: bool = True, device: str = "cpu") -> str:
     """``"onnxruntime"`` or ``"torch"`` for a ``backend`` setting (see the module docstring).
     ``"onnxruntime"`` asked for but not installed raises ImportError; ``"auto"`` without it
-    warns once per process and gives ``"torch"``."""
+    warns once per process and gives ``"torch"``. ``"auto"`` with a GPU ``device`` (not
+    ``"cpu"``) gives ``"torch"`` when this onnxruntime has no GPU execution provider but
+    torch sees a GPU: the device asked for, not onnxruntime on the CPU."""
     global _warned_missing
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
@@ -62,6 +64,8 @@ def resolve_backend(backend: str = "auto", precision: str = "fp32", trace: bool 
     if precision == "bf16" or (not trace and precision != "int8"):
         return "torch"
     if ort_available():
+        if str(device) != "cpu" and not gpu_providers() and _torch_sees_gpu(device):
+            return "torch"
         return "onnxruntime"
     with _warn_lock:
         if not _warned_missing:
@@ -71,16 +75,30 @@ def resolve_backend(backend: str = "auto", precision: str = "fp32", trace: bool 
     return "torch"
 
 
+def gpu_providers() -> list[str]:
+    """The GPU execution providers (TensorRT, CUDA) this onnxruntime has, best first."""
+    import onnxruntime as ort
+
+    have = set(ort.get_available_providers())
+    return [p for p in ("TensorrtExecutionProvider", "CUDAExecutionProvider") if p in have]
+
+
+def _torch_sees_gpu(device: str) -> bool:
+    """Whether torch imports and ``device`` (``"auto"``, ``"cuda"``, ``"cuda:N"``, ...) resolves to a GPU."""
+    try:
+        from .devices import resolve_device
+
+        return resolve_device(device).type != "cpu"
+    except Exception:  # noqa: BLE001 - no torch, or a device torch does not know: onnxruntime serves
+        return False
+
+
 def providers_for(device: str) -> list[str]:
     """Execution providers for ``device`` (``"cpu"``, ``"cuda"``, ``"auto"``): CPU only for
     ``"cpu"``, else TensorRT / CUDA where this onnxruntime has them, then CPU."""
-    import onnxruntime as ort
-
     if str(device) == "cpu":
         return ["CPUExecutionProvider"]
-    have = set(ort.get_available_providers())
-    gpu = [p for p in ("TensorrtExecutionProvider", "CUDAExecutionProvider") if p in have]
-    return gpu + ["CPUExecutionProvider"]
+    return gpu_providers() + ["CPUExecutionProvider"]
 
 
 def make_session(path: str | Path, threads: int = 1, device: str = "cpu", spinning: bool = False) -> Any:

@@ -94,7 +94,7 @@ class FrustumPredictor:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
         self.precision = precision
         self.num_threads = num_threads
-        self.backend = resolve_backend(backend, precision, trace)
+        self.backend = resolve_backend(backend, precision, trace, str(device))
         self._trace = bool(trace)
         self.workers = max(1, int(workers))
         self.min_chunk = max(1, int(min_chunk))
