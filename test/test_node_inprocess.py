@@ -120,6 +120,14 @@ class Harness:
             time.sleep(0.02)
         return self.markers
 
+    def wait_processed(self, n: int, timeout: float = 5.0) -> dict:
+        """The node's stats once it counted ``n`` processed frames (or at ``timeout``): a frame
+        is counted after its markers are published, so a subscriber can see them first."""
+        deadline = time.monotonic() + timeout
+        while self.node.get_stats().get("processed", 0) < n and time.monotonic() < deadline:
+            time.sleep(0.01)
+        return self.node.get_stats()
+
     def close(self):
         self.executor.shutdown(timeout_sec=2.0)
         self.thread.join(timeout=5)
@@ -158,7 +166,7 @@ def test_one_marker_array_per_frame_with_stamp_and_frame(harness):
     assert [stamp_of(m) for m in h.markers] == stamps
     assert all(m.markers[0].header.frame_id == "cam_optical" for m in h.markers)
     assert all(m.markers[0].action == 3 for m in h.markers)  # DELETEALL first
-    stats = h.node.get_stats()
+    stats = h.wait_processed(6)
     assert (stats["synced"], stats["processed"], stats["published"], stats["dropped"]) == (6, 6, 6, 0), stats
     assert stats["latency_p50_ms"] > 0, stats
     if isinstance(h.node.detector, FakeDetector):
@@ -340,7 +348,7 @@ def test_pipeline_detector_failure_in_second_stage_publishes_empty_and_goes_on(h
     det.fail_on = None
     h.frame(time.time_ns())
     assert len(h.wait_markers(2)) == 2 and len(h.markers[1].markers) == 4
-    st = h.node.get_stats()
+    st = h.wait_processed(2)
     assert st["detector_errors"] == 1 and st["processed"] == 2 and st.get("errors", 0) == 0
 
 
