@@ -63,7 +63,10 @@ def test_uint16_millimetres_and_float_metres_give_the_same_result(detector):
     depth_mm = np.nan_to_num(frame.depth * 1000.0, nan=0.0).round().astype(np.uint16)
     a = detector.detect(frame.rgb, depth_mm, frame.K, boxes2d=box, up=frame.up)
     b = detector.detect(frame.rgb, depth_mm.astype(np.float32) / 1000.0, frame.K, boxes2d=box, up=frame.up)
-    np.testing.assert_allclose(a[0].center, b[0].center, atol=1e-4)
+    # the two conversions may differ in the last bit, and given boxes run in int8 (precision
+    # auto), whose run-time input quantisation can round such a point differently on another
+    # CPU: millimetres, not the factor 1000 of a unit mix-up
+    np.testing.assert_allclose(a[0].center, b[0].center, atol=0.005)
 
 
 def test_without_boxes_or_up_uses_builtin_proposals_and_gravity(detector):

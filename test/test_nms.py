@@ -1,6 +1,7 @@
 """3D NMS (shape_detector.postprocess.nms)."""
 
 import numpy as np
+import pytest
 
 from shape_detector.geometry import heading_to_rotation
 from shape_detector.postprocess.nms import nms_3d, overlap_ratios
@@ -83,8 +84,8 @@ def test_suppressed_boxes_suppress_nothing():
     a = _obj(0.9, [0, 0, 3.0])
     b = _obj(0.8, np.array([0, 0, 3.0]) + R[:, 0] * 0.5)  # IoU 1/3 with a -> suppressed
     c = _obj(0.7, np.array([0, 0, 3.0]) + R[:, 0] * 1.0)  # touches a, IoU 1/3 with b
-    assert overlap_ratios(b, c)[0] > 0.25 and overlap_ratios(a, c)[0] == 0.0
+    assert overlap_ratios(b, c)[0] > 0.25 and overlap_ratios(a, c)[0] == pytest.approx(0.0, abs=1e-9)
     hard = nms_3d([a, b, c], 0.25)
     soft = nms_3d([a, b, c], 0.25, decay=0.2)
     assert hard == [a, c] and soft[:2] == [a, c]
-    assert len(soft) == 3 and soft[2].score == 0.8 * 0.2
+    assert len(soft) == 3 and soft[2].score == pytest.approx(0.8 * 0.2)

@@ -185,3 +185,31 @@ def test_first_pass_without_shapes_keeps_every_other_output(weights, cache):
     for p, q in zip(a, b):
         np.testing.assert_allclose(p.center, q.center, atol=1e-6)
         assert len(p.primitives) == len(q.primitives)
+
+
+@pytest.mark.slow
+def test_processes_starting_together_share_one_export_of_the_graphs(tmp_path):
+    """Three processes start at once on a cold graph cache (two detector nodes launched
+    together, detector_processes): one exports and quantises, the others wait for it; every
+    one runs in onnxruntime, none falls back to torch, and graphs.json records every graph.
+    The shipped architecture (random weights): with a small network the export and the
+    quantiser's scratch file live too briefly for the processes to collide without the lock
+    (with the full one, 1 run in 2 fell back to torch)."""
+    w = save_small_weights(tmp_path / "w.pt")
+    code = ("import warnings, sys; warnings.simplefilter('error'); "
+            "from shape_detector.model.predictor import FrustumPredictor; "
+            f"p = FrustumPredictor({str(w)!r}, backend='onnxruntime', precision='auto'); "
+            "print(p.backend, p.int8_graphs)")
+    env = {**os.environ, "SHAPE_DETECTOR_CACHE": str(tmp_path / "cache"), "SHAPE_DETECTOR_BACKEND": ""}
+    root = Path(__file__).resolve().parents[1]
+    procs = [subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True, env=env, cwd=root) for _ in range(3)]
+    outs = [p.communicate(timeout=240) for p in procs]
+    for p, (out, err) in zip(procs, outs):
+        assert p.returncode == 0, err[-2000:]
+        assert out.split()[0] == "onnxruntime", (out, err[-2000:])
+    (folder,) = (tmp_path / "cache").iterdir()
+    graphs = json.loads((folder / "graphs.json").read_text())["graphs"]
+    assert {"frustum_seg", "frustum_head", "frustum_box", "frustum_head_int8", "frustum_box_int8"} <= set(graphs)
+    assert graphs["frustum_head_int8"]["quantized_matmuls"] > 0
+    assert not [f.name for f in folder.iterdir() if f.name.endswith((".tmp", "-inferred.onnx"))]

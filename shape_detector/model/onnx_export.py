@@ -21,7 +21,9 @@ Cached graphs live under ``$SHAPE_DETECTOR_CACHE``, else ``$XDG_CACHE_HOME/shape
 else ``~/.cache/shape_detector`` (a temp dir when none is writable), in a folder named by
 the sha256 of the weights file (or of the module's state when there is no file) and
 :data:`EXPORT_VERSION`, with a ``graphs.json`` describing inputs, outputs and the model
-config (which lets a predictor start from the cache without importing torch).
+config (which lets a predictor start from the cache without importing torch). Processes that
+start together on a cold cache (two nodes, detector worker processes) take turns on a folder
+(:func:`cache_lock`): one exports, the others then find its graphs.
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ import json
 import os
 import tempfile
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -91,6 +95,27 @@ def cache_dir(kind: str, digest: str) -> Path:
     return cache_root() / f"{kind}-v{EXPORT_VERSION}-{digest[:32]}"
 
 
+@contextmanager
+def cache_lock(folder: str | Path) -> Iterator[None]:
+    """Hold an exclusive lock on the cache ``folder`` (created) across processes while writing
+    into it: the exporter and the quantiser write and delete files beside the graphs, which
+    two processes doing the same at once would take from each other. POSIX ``flock``; a
+    no-op where ``fcntl`` does not exist. Not re-entrant: never nest two on one folder."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        import fcntl
+    except ImportError:  # not POSIX (Windows): unlocked, as before
+        yield
+        return
+    with open(folder / ".lock", "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
 def read_meta(folder: str | Path) -> dict[str, Any] | None:
     """``graphs.json`` of an export folder, None when missing or unreadable."""
     try:
@@ -103,7 +128,7 @@ def _write_meta(folder: Path, meta: dict[str, Any]) -> None:
     old = read_meta(folder) or {}
     graphs = {**old.get("graphs", {}), **meta.pop("graphs", {})}
     merged = {**old, **meta, "graphs": graphs, "export_version": EXPORT_VERSION, "opset": OPSET}
-    tmp = folder / (META_FILE + ".tmp")
+    tmp = folder / f"{META_FILE}.{os.getpid()}.tmp"
     tmp.write_text(json.dumps(merged, indent=2, default=str))
     os.replace(tmp, folder / META_FILE)
 
@@ -298,10 +323,13 @@ def frustum_graphs(weights: str | Path | None, load_model) -> tuple[Path, dict[s
     folder = cache_dir("frustum", digest)
     info = _complete(folder, FRUSTUM_GRAPHS)
     if info is None:
-        if model is None:
-            model, meta = load_model()
-        export_frustum_graphs(model, folder, {"tasks": meta.get("tasks")})
-        info = _complete(folder, FRUSTUM_GRAPHS)
+        with cache_lock(folder):
+            info = _complete(folder, FRUSTUM_GRAPHS)  # another process may have exported meanwhile
+            if info is None:
+                if model is None:
+                    model, meta = load_model()
+                export_frustum_graphs(model, folder, {"tasks": meta.get("tasks")})
+                info = _complete(folder, FRUSTUM_GRAPHS)
         if info is None:
             raise RuntimeError(f"export to {folder} left no usable graphs")
     return folder, info, model
@@ -312,5 +340,7 @@ def classifier_graph(model: Any) -> Path:
     when missing."""
     folder = cache_dir("classifier", module_digest(model))
     if _complete(folder, ("classifier",)) is None:
-        export_classifier_graph(model, folder)
+        with cache_lock(folder):
+            if _complete(folder, ("classifier",)) is None:
+                export_classifier_graph(model, folder)
     return folder / GRAPH_FILES["classifier"]

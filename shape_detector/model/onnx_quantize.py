@@ -34,7 +34,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from .onnx_export import GRAPH_FILES, _write_meta, read_meta
+from .onnx_export import GRAPH_FILES, _write_meta, cache_lock, read_meta
 
 #: the graphs that have an int8 version
 INT8_GRAPHS = ("frustum_box", "frustum_head")
@@ -112,12 +112,26 @@ def int8_graphs(folder: str | Path, names: tuple[str, ...] = INT8_GRAPHS) -> dic
     graphs), built first where ``graphs.json`` does not record this :data:`INT8_VERSION` of them."""
     folder = Path(folder)
     paths = {name: folder / int8_file(name) for name in names}
+    if not _missing(folder, paths):
+        return paths
+    with cache_lock(folder):  # the quantiser writes and deletes a file beside the source graph
+        _build_int8(folder, _missing(folder, paths))
+    return paths
+
+
+def _missing(folder: Path, paths: dict[str, Path]) -> dict[str, Path]:
+    """Those of ``paths`` (graph name -> int8 file) not built, or not recorded in ``graphs.json``
+    with this :data:`INT8_VERSION`."""
+    known = (read_meta(folder) or {}).get("graphs", {})
+    return {name: path for name, path in paths.items()
+            if not (path.is_file() and (known.get(name + "_int8") or {}).get("int8_version") == INT8_VERSION)}
+
+
+def _build_int8(folder: Path, paths: dict[str, Path]) -> None:
+    """Quantise the graphs ``paths`` names and record them in ``graphs.json``."""
     known = (read_meta(folder) or {}).get("graphs", {})
     built: dict[str, Any] = {}
     for name, path in paths.items():
-        entry = known.get(name + "_int8") or {}
-        if path.is_file() and entry.get("int8_version") == INT8_VERSION:
-            continue
         count = quantize_graph(folder / GRAPH_FILES[name], path)
         src = known.get(name) or {}
         built[name + "_int8"] = {"file": path.name, "from": GRAPH_FILES[name], "int8_version": INT8_VERSION,
@@ -126,4 +140,3 @@ def int8_graphs(folder: str | Path, names: tuple[str, ...] = INT8_GRAPHS) -> dic
                                  "activations": "uint8 per batch, dynamic"}
     if built:
         _write_meta(folder, {"graphs": built})
-    return paths
