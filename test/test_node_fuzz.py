@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from child_env import child_env
 from shape_detector.bags.source import BagReadError
 from shape_detector.synth.bag import write_rgbd_bag
 from shape_detector.node_params import PARAMETERS
@@ -382,7 +383,7 @@ def test_cli_reports_damage_without_traceback(good_bag, tmp_path):
     bad.write_bytes(data[: len(data) // 2])
     exe = Path(sys.executable).parent / "shape-detector"
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "shape_detector"]
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), str(Path(__file__).parent)]))
+    env = child_env()
     r = subprocess.run(cmd + ["replay", str(bad), "-o", str(tmp_path / "out"), "--no-progress",
                               "--detector", "test_node_fuzz:MoodyDetector"],
                        capture_output=True, text=True, timeout=120, env=env)

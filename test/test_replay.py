@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from child_env import child_env
 from shape_detector.bags.reader import BagFrameReader
 from shape_detector.bags.source import DETECTIONS_TOPIC, MARKERS_TOPIC, read_messages
 from shape_detector.replay import replay_bag
@@ -125,7 +126,7 @@ def test_replay_bag_writes_one_marker_per_synced_frame(bag, tmp_path):
 def _cli(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     exe = Path(sys.executable).parent / "shape-detector"
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "shape_detector"]
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), str(TEST_DIR)]))
+    env = child_env()
     return subprocess.run(cmd + ["replay", *args], capture_output=True, text=True, timeout=timeout, env=env)
 
 
@@ -270,7 +271,7 @@ def test_play_cli_publishes_live(bag, ros_context):
         cmd + ["replay", str(bag), "--play", "--rate", "2", "--restamp", "--wait-subscribers", "20",
                "--topics", image_topic, info_topic, "--remap", f"{image_topic}:=/played/image"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        env=dict(os.environ, PYTHONPATH=str(ROOT)),
+        env=child_env(),
     )
     try:
         deadline = time.monotonic() + 60

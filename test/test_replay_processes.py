@@ -4,7 +4,6 @@ nothing that was handed over."""
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -12,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from child_env import child_env
 from shape_detector.bags.source import MARKERS_TOPIC, read_messages
 from shape_detector.detector_config import preset
 from shape_detector.process_detector import ProcessDetector
@@ -80,7 +80,7 @@ def test_a_stop_finishes_and_writes_the_frames_in_flight(bag, workers, tmp_path)
 def test_replay_cli_with_processes(bag, tmp_path):
     exe = Path(sys.executable).parent / "shape-detector"
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "shape_detector"]
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), str(TEST_DIR)]))
+    env = child_env()
     r = subprocess.run(cmd + ["replay", str(bag), "-o", str(tmp_path / "cli"), "--no-progress", "--processes", "2",
                               "--detector", FACTORY], capture_output=True, text=True, timeout=120, env=env)
     assert r.returncode in (0, 3), r.stderr + r.stdout  # 3: a frame was skipped (the refused one)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from child_env import child_env
 from shape_detector.bags.source import MARKERS_TOPIC, read_messages
 from shape_detector.bags.output import OutputError
 from shape_detector.bags.output_safety import UnsafeOutputError, check_output_path
@@ -166,13 +167,12 @@ def test_file_size_limit_cli_is_one_line(small_bag, tmp_path):
     import subprocess
     import sys
 
-    from test_replay import ROOT, TEST_DIR
 
     def limit():
         resource.setrlimit(resource.RLIMIT_FSIZE, (30_000, 30_000))
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), str(TEST_DIR)]))
+    env = child_env()
     cmd = [sys.executable, "-m", "shape_detector", "replay", str(small_bag), "-o", str(tmp_path / "out"), *FAKE]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env, preexec_fn=limit)
     assert r.returncode == 1, r.stderr
