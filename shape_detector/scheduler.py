@@ -29,9 +29,6 @@ from .frame_prep import FrameError, prepare_frame
 from .process_detector import close_detector
 from .sync import LatestMailbox, header_stamp_ns
 
-#: seconds a synchronised frame waits for the first camera_info before it is skipped
-FIRST_INFO_WAIT_S = 0.5
-
 #: longest a thread is waited for at shutdown, seconds: a detector stuck in a frame must
 #: not keep the process from exiting (the threads are daemons)
 JOIN_TIMEOUT_S = 5.0
@@ -147,10 +144,9 @@ class FrameScheduler:
         info = fs.camera_info
         if info is None:
             # the executor may hand over image + depth before a camera_info that arrived
-            # with them (it serves the subscriptions in creation order, and on a loaded machine
-            # all three wait at once): give it a moment, while none has ever arrived
+            # with them: give the first one a moment
             if not host.info_event.is_set():
-                host.info_event.wait(FIRST_INFO_WAIT_S)
+                host.info_event.wait(0.1)
             info = host.camera_info()
         try:
             pf = prepare_frame(fs.image, fs.depth, info, depth_scale=float(host.p["depth_scale"]) or None,

@@ -4,7 +4,6 @@ same parameters, and their loss is a single process's on the same global batches
 from __future__ import annotations
 
 import json
-import os
 import socket
 import subprocess
 import sys
@@ -14,6 +13,7 @@ import numpy as np
 import pytest
 import torch
 
+from child_env import child_env
 from shape_detector.model.io import load_checkpoint
 from shape_detector.training import distributed as ddp
 from shape_detector.training import frustum_dataset as fds
@@ -42,8 +42,7 @@ def _free_port() -> int:
 
 
 def _run(cmd: list[str], timeout: float) -> None:
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "GLOO_SOCKET_IFNAME": "lo",
-           "PYTHONPATH": os.pathsep.join([str(HERE.parent), str(HERE), os.environ.get("PYTHONPATH", "")])}
+    env = child_env(OMP_NUM_THREADS="1", GLOO_SOCKET_IFNAME="lo")
     for k in ("RANK", "WORLD_SIZE", "LOCAL_RANK", "MASTER_ADDR", "MASTER_PORT"):
         env.pop(k, None)
     try:

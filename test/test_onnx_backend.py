@@ -193,8 +193,7 @@ def test_processes_starting_together_share_one_export_of_the_graphs(tmp_path):
     together, detector_processes): one exports and quantises, the others wait for it; every
     one runs in onnxruntime, none falls back to torch, and graphs.json records every graph.
     The shipped architecture (random weights): with a small network the export and the
-    quantiser's scratch file live too briefly for the processes to collide without the lock
-    (with the full one, 1 run in 2 fell back to torch)."""
+    quantiser's scratch file live too briefly for the processes to collide."""
     w = save_small_weights(tmp_path / "w.pt")
     code = ("import warnings, sys; warnings.simplefilter('error'); "
             "from shape_detector.model.predictor import FrustumPredictor; "

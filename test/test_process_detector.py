@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from child_env import child_env
 from shape_detector.detector_config import preset
 from shape_detector.process_detector import ProcessDetector
 from shape_detector.types import Object3D
@@ -47,7 +48,7 @@ def _frame(z: float) -> tuple[np.ndarray, np.ndarray]:
 @pytest.fixture()
 def pool(monkeypatch):
     # the spawned workers import this module by name
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(TEST_DIR), os.environ.get("PYTHONPATH", "")]))
+    monkeypatch.setenv("PYTHONPATH", child_env()["PYTHONPATH"])
     if str(TEST_DIR) not in sys.path:
         monkeypatch.syspath_prepend(str(TEST_DIR))
     det = ProcessDetector(preset("realtime"), 2, FAKE)
@@ -99,7 +100,7 @@ def test_a_dead_worker_fails_its_frame_and_is_replaced(pool):
 
 
 def test_close_stops_the_workers(monkeypatch):
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(TEST_DIR), os.environ.get("PYTHONPATH", "")]))
+    monkeypatch.setenv("PYTHONPATH", child_env()["PYTHONPATH"])
     det = ProcessDetector(preset("realtime"), 1, FAKE)
     det.warm_up()
     pids = list(det.worker_pids)
@@ -143,7 +144,7 @@ def test_workers_ignore_ctrl_c_and_exit_with_a_killed_parent(tmp_path):
         "    print(*det.worker_pids, flush=True)\n"
         "    time.sleep(60)\n")
     proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)
+                            text=True, start_new_session=True, env=child_env())
     try:
         pids = [int(p) for p in proc.stdout.readline().split()]
         assert len(pids) == 2

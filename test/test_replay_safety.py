@@ -167,7 +167,6 @@ def test_file_size_limit_cli_is_one_line(small_bag, tmp_path):
     import subprocess
     import sys
 
-
     def limit():
         resource.setrlimit(resource.RLIMIT_FSIZE, (30_000, 30_000))
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)

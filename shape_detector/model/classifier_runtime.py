@@ -62,21 +62,21 @@ class ClassifierPredictor:
         """A predictor for a classifier weights file. Under onnxruntime, the graph cached for
         the file's sha256 is used without importing torch; missing, it is exported first."""
         from ..digests import sha256_file
-        from .onnx_export import GRAPH_FILES, _complete, cache_dir, cache_lock, export_classifier_graph
+        from .onnx_export import GRAPH_FILES, cache_dir, ensure_graphs, export_classifier_graph
 
         precision = _no_int8(precision)
         if resolve_backend(backend, precision, trace) == "onnxruntime":
             try:
                 folder = cache_dir("classifier-file", sha256_file(path))
-                info = _complete(folder, ("classifier",))
-                if info is None:
-                    with cache_lock(folder):
-                        info = _complete(folder, ("classifier",))
-                        if info is None:
-                            from .classifier import load_classifier
 
-                            export_classifier_graph(load_classifier(path)[0].eval().fuse_batchnorm(), folder)
-                            info = _complete(folder, ("classifier",))
+                def export() -> None:
+                    from .classifier import load_classifier
+
+                    export_classifier_graph(load_classifier(path)[0].eval().fuse_batchnorm(), folder)
+
+                info = ensure_graphs(folder, ("classifier",), export)
+                if info is None:
+                    raise RuntimeError(f"export to {folder} left no usable classifier graph")
                 self = cls(None, precision, trace, backend, num_threads)
                 self._config = ClassifierConfig.from_dict(info["classifier_config"])
                 self._ort = OrtClassifier(folder / GRAPH_FILES["classifier"], num_threads)

@@ -33,7 +33,7 @@ import json
 import os
 import tempfile
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -309,29 +309,42 @@ def _complete(folder: Path, names: tuple[str, ...]) -> dict[str, Any] | None:
     return meta
 
 
+def ensure_graphs(folder: Path, names: tuple[str, ...], export: Callable[[], Any]) -> dict[str, Any] | None:
+    """``graphs.json`` of ``folder`` once it holds the graphs ``names``; when it does not,
+    ``export()`` runs first, under :func:`cache_lock` and only if no other process exported
+    them while this one waited. None when the export left them incomplete."""
+    info = _complete(folder, names)
+    if info is None:
+        with cache_lock(folder):
+            info = _complete(folder, names)  # another process may have exported meanwhile
+            if info is None:
+                export()
+                info = _complete(folder, names)
+    return info
+
+
 def frustum_graphs(weights: str | Path | None, load_model) -> tuple[Path, dict[str, Any], Any]:
     """``(folder, graphs.json, model or None)``: the cached frustum graphs of ``weights``
     (keyed by the file's sha256), exported first when missing; ``load_model()`` ->
     ``(eval-mode network, meta)`` is called only then (it imports torch), or always when
     ``weights`` is None (the key is then the module's state)."""
-    model = None
+    model, meta = None, {}
     if weights is None:
         model, meta = load_model()
         digest = module_digest(model)
     else:
         digest = sha256_file(weights)
     folder = cache_dir("frustum", digest)
-    info = _complete(folder, FRUSTUM_GRAPHS)
+
+    def export() -> None:
+        nonlocal model, meta
+        if model is None:
+            model, meta = load_model()
+        export_frustum_graphs(model, folder, {"tasks": meta.get("tasks")})
+
+    info = ensure_graphs(folder, FRUSTUM_GRAPHS, export)
     if info is None:
-        with cache_lock(folder):
-            info = _complete(folder, FRUSTUM_GRAPHS)  # another process may have exported meanwhile
-            if info is None:
-                if model is None:
-                    model, meta = load_model()
-                export_frustum_graphs(model, folder, {"tasks": meta.get("tasks")})
-                info = _complete(folder, FRUSTUM_GRAPHS)
-        if info is None:
-            raise RuntimeError(f"export to {folder} left no usable graphs")
+        raise RuntimeError(f"export to {folder} left no usable graphs")
     return folder, info, model
 
 
@@ -339,8 +352,5 @@ def classifier_graph(model: Any) -> Path:
     """The cached classifier graph of ``model`` (keyed by its state's sha256), exported first
     when missing."""
     folder = cache_dir("classifier", module_digest(model))
-    if _complete(folder, ("classifier",)) is None:
-        with cache_lock(folder):
-            if _complete(folder, ("classifier",)) is None:
-                export_classifier_graph(model, folder)
+    ensure_graphs(folder, ("classifier",), lambda: export_classifier_graph(model, folder))
     return folder / GRAPH_FILES["classifier"]
