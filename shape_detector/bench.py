@@ -63,6 +63,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--against", default=None, choices=PRECISIONS,
                    help="pipeline: also time detect() in this precision, alternating frames with --precision "
                         "in one process (a paired comparison that the VM's drift does not bias)")
+    p.add_argument("--gravity", default="estimate", choices=("estimate", "given"),
+                   help="pipeline: estimate gravity per frame (default) or give each frame's true up, as a node "
+                        "with a camera pose does (up_source auto)")
     p.add_argument("--processes", type=int, default=2,
                    help="pipeline: also time the node's pipeline with this many detector processes (0: not)")
     p.add_argument("--bag", default=str(Path(__file__).resolve().parents[1] / "bags" / "sample"))
@@ -116,6 +119,7 @@ def bench_pipeline(
     against: str | None = None,
     processes: int = 2,
     device: str | None = None,
+    gravity: str = "estimate",
 ) -> dict:
     """Median / p95 ms per VGA frame of serial ``ShapeDetector.detect`` (the realtime preset;
     arguments that are not None change its settings) with GT boxes (``gt_boxes``), with 10
@@ -124,7 +128,8 @@ def bench_pipeline(
     (``peer``: :mod:`.model.fpointnet_v1`), then the built-in throughput with the node's
     two-thread pipeline, and in ``processes`` worker processes (0: not timed). ``against``:
     another precision, timed alternately with this one on the same frames
-    (:func:`_bench_paired`)."""
+    (:func:`_bench_paired`). ``gravity``: ``estimate`` per frame or ``given`` (each frame's
+    true up, as the node gets it from a camera pose)."""
     from .detector import ShapeDetector
     from .detector_config import resolved_workers
 
@@ -139,11 +144,12 @@ def bench_pipeline(
     cfg = det.config
     print(f"pipeline: {len(scenes)} VGA frames, backend {det.predictor.backend} on {det.predictor.device}, precision {det.predictor.precision}, "
           f"max_objects {cfg.max_objects}, workers {det.predictor.workers} ({cfg.workers or 'auto'}), threads {cfg.num_threads}, "
-          f"score_threshold {cfg.score_threshold}; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs",
+          f"score_threshold {cfg.score_threshold}, gravity {gravity}; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs",
           flush=True)
     out: dict[str, dict] = {}
+    given_up = gravity == "given"
     for mode in ("gt_boxes", "given10", "builtin"):
-        out[mode] = _bench_mode(det, scenes, mode)
+        out[mode] = _bench_mode(det, scenes, mode, given_up)
     if against is not None:
         other = ShapeDetector(**{**{k: v for k, v in overrides.items() if v is not None}, "precision": against})
         other.warm_up()
@@ -168,7 +174,7 @@ def bench_pipeline(
         det.warm_up()
     # a node runs for hours: its throughput is the steady state over more frames than the serial rows time
     stream = (scenes * -(-PIPELINE_FRAMES // len(scenes)))[:max(PIPELINE_FRAMES, len(scenes))]
-    res = _bench_pipelined(det, stream, pipeline_split)
+    res = _bench_pipelined(det, stream, pipeline_split, given_up)
     out["builtin_pipelined"] = res
     print(
         f"pipeline[builtin, node's 2-stage pipeline, workers={node_workers}, {len(stream)} frames]: "
@@ -182,7 +188,7 @@ def bench_pipeline(
         from .process_detector import ProcessDetector
 
         with ProcessDetector.started(det.config, processes) as pool:
-            res = _bench_pipelined(pool, stream)
+            res = _bench_pipelined(pool, stream, given_up=given_up)
         out["builtin_processes"] = res
         print(f"pipeline[builtin, node's pipeline, detector_processes={processes}]: {res['ms_per_frame']:.1f} ms/frame "
               f"steady throughput ({res['fps']:.1f} fps); latency p50 {res['latency_ms_p50']:.1f} ms, "
@@ -190,17 +196,17 @@ def bench_pipeline(
     return out
 
 
-def _bench_mode(det, scenes: list, mode: str) -> dict:
+def _bench_mode(det, scenes: list, mode: str, given_up: bool = False) -> dict:
     """Median / p95 wall and CPU ms per frame of serial ``det.detect`` on ``scenes`` with the
-    boxes of ``mode`` (``gt_boxes``, ``given10`` or ``builtin``: none), and the median ms of
-    each stage; prints one line."""
+    boxes of ``mode`` (``gt_boxes``, ``given10`` or ``builtin``: none) and the frames' true up
+    when ``given_up`` (else estimated), and the median ms of each stage; prints one line."""
     times, cpu, parts, nobj = [], [], [], []
     det.detect(scenes[0].rgb, scenes[0].depth, scenes[0].K)  # warm-up
     for f in scenes:
         boxes = {"gt_boxes": [(*o.box2d, o.class_name) for o in f.objects], "given10": given_boxes(f),
                  "builtin": None}[mode]
         t0, c0 = time.perf_counter(), time.process_time()
-        det.detect(f.rgb, f.depth, f.K, boxes2d=boxes)
+        det.detect(f.rgb, f.depth, f.K, boxes2d=boxes, up=f.up if given_up else None)
         times.append(1e3 * (time.perf_counter() - t0))
         cpu.append(1e3 * (time.process_time() - c0))
         parts.append(det.last_timing)
@@ -248,14 +254,14 @@ def _bench_paired(det, other, scenes: list, mode: str) -> dict:
     return res
 
 
-def _bench_pipelined(det, scenes: list, split: str = "auto") -> dict:
+def _bench_pipelined(det, scenes: list, split: str = "auto", given_up: bool = False) -> dict:
     """Throughput and latency of built-in-proposal detection run as the node runs it with
     ``pipeline``: one thread runs ``prepare`` on frame N+1 while another runs ``finish`` on
     frame N; the first takes a frame once the second has taken the previous one, and a
     frame is always waiting (a camera faster than the detector, without the drops).
     ``split``: the node's ``pipeline_split``. The throughput is the steady state a running
     node delivers: the time from the first frame's output to the last's over the frames
-    between (the pipeline's one-off fill left out)."""
+    between (the pipeline's one-off fill left out). ``given_up``: the frames' true up, else estimated."""
     import threading
 
     from .detector import first_pass_share
@@ -274,7 +280,7 @@ def _bench_pipelined(det, scenes: list, split: str = "auto") -> dict:
                 if handoff.closed:  # the second stage failed
                     return
                 t0 = time.perf_counter()
-                prepared = det.prepare(f.rgb, f.depth, f.K)
+                prepared = det.prepare(f.rgb, f.depth, f.K, up=f.up if given_up else None)
                 share = first_pass_share(det.last_timing) if split == "auto" else float(split == "network")
                 share *= hasattr(det, "first_pass")  # worker processes run whole frames
                 early.append(share)  # as the node's pipeline_split
@@ -342,7 +348,7 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
             refine=not args.no_refine, pipeline_split=args.pipeline_split, trace=not args.no_trace,
             free_space=not args.no_free_space, backend=args.backend, score_threshold=args.score_threshold,
             data=args.data, peer=not args.no_peer, against=args.against, processes=args.processes,
-            device=args.device,
+            device=args.device, gravity=args.gravity,
         )
     if target == "node":
         from .node_bench import bench_node

@@ -175,8 +175,23 @@ class NodeCore:
         if self._scheduler is not None:
             self._scheduler.offer(fs)
 
+    def frame_up(self, fs: FrameSet, stamp_ns: int, frame_id: str) -> np.ndarray | None:
+        """Gravity up (camera optical frame) for a frame about to be detected: the value taken
+        at synchronisation (``fixed``, ``imu``), else with ``auto`` / ``pose`` the scene's
+        camera pose at the frame's stamp; None: the detector estimates it."""
+        if fs.up is not None or self.p["up_source"] not in ("auto", "pose"):
+            return fs.up
+        scene = getattr(self, "scene", None)
+        up = scene.up_at(frame_id, stamp_ns) if scene is not None else None
+        if up is None and self.p["up_source"] == "pose":
+            self.warn("no_pose_up", "up_source=pose but no camera pose at the frame's stamp"
+                      + ("" if scene is not None else " (publish_scene is off: no poses)")
+                      + ": estimating up from the scene")
+        return up
+
     def current_up(self) -> np.ndarray | None:
-        """Gravity up (camera frame) for the next frame; None: the detector estimates it."""
+        """Gravity up (camera frame) taken at synchronisation (``fixed``, ``imu``); None: later
+        from the pose (:meth:`frame_up`) or estimated by the detector."""
         src = self.p["up_source"]
         if src == "fixed":
             return unit(self.p["up"])

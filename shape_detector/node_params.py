@@ -34,8 +34,10 @@ class NodeConfig:
     size_mismatch: str = setting("rescale", "depth and colour of different sizes: rescale (colour to the depth "
                                  "size, intrinsics scaled) or skip the frame", choices=("rescale", "skip"),
                                  node="dynamic")
-    up_source: str = setting("estimate", "gravity direction: estimate (from the scene), fixed (parameter up) or "
-                             "imu (the imu topic, low-passed)", choices=("estimate", "fixed", "imu"), node="dynamic")
+    up_source: str = setting("auto", "gravity direction: auto (the scene's camera pose where one is known at the "
+                             "frame's stamp, else estimated), pose (the same, warned about when none is known), "
+                             "estimate (from the scene), fixed (parameter up) or imu (the imu topic, low-passed)",
+                             choices=("auto", "pose", "estimate", "fixed", "imu"), node="dynamic")
     up: list = setting([0.0, -1.0, 0.0], "fixed gravity-up vector, camera optical frame (up_source fixed; "
                        "normalised)", length=3, node="dynamic")
     imu_to_camera: list = setting([0.0, 0.0, 0.0, 1.0], "rotation IMU frame -> camera optical frame as quaternion "

@@ -12,7 +12,8 @@ than the newest pose waits up to ``pose_timeout`` for it; a frame without a pose
 then skips the scene update (logged); the detections are published all the same.
 
 Thread safety: poses arrive on the executor thread, frames on the worker, plan requests on
-the executor again; one lock guards the buffer and the map.
+the executor again; one lock guards the pose buffer, another the map, so that a frame's pose
+lookup never waits for a map update.
 """
 
 from __future__ import annotations
@@ -34,6 +35,9 @@ SURFACE_KEY_STEP = 0.02
 SURFACES_PERIOD = 1.0
 #: values of the pose_source parameter
 POSE_SOURCES = ("auto", "tf", "odom", "pose", "none")
+#: gravity from a pose this much older than the frame is still used (s): the pose stream may
+#: lag the images, and the camera's tilt changes slowly
+UP_POSE_LAG = 0.2
 
 Warn = Callable[..., None]
 
@@ -87,8 +91,9 @@ class SceneFeed:
         self.poses = CameraPoseSource(self.config.world_frame, kind="tf")
         self.tf2 = tf2
         self.warn = warn
-        self.lock = threading.Lock()
-        self._pose_arrived = threading.Condition(self.lock)
+        self.lock = threading.Lock()  # the map and what is said about it (posed, versions)
+        self.pose_lock = threading.Lock()  # the pose buffer and newest_pose_ns
+        self._pose_arrived = threading.Condition(self.pose_lock)
         self.newest_pose_ns = -1  # stamp of the newest moving pose (not /tf_static)
         self.pose_timeout = float(p["pose_timeout"])
         self.plan_unknown = str(p.get("plan_unknown", "interior"))  # ~/get_plan's unknown cells
@@ -102,7 +107,7 @@ class SceneFeed:
     def add_pose(self, kind: str, msg: Any) -> None:
         """A pose message of ``kind`` (tf, tf_static, odometry, pose); a bad one is warned about."""
         try:
-            with self.lock:
+            with self.pose_lock:
                 self.poses.add_message(msg, kind)
                 self.newest_pose_ns = max(self.newest_pose_ns, newest_stamp_ns(kind, msg))
                 self._pose_arrived.notify_all()
@@ -120,7 +125,7 @@ class SceneFeed:
                 return self.tf2.T_world_camera(camera_frame, stamp_ns), None
             except TransformLookupError as e:
                 errors.append(str(e))
-        with self.lock:
+        with self.pose_lock:
             if self.poses.messages > 0 or self.source_kind != "auto":
                 # the frame may be ahead of the pose stream: give it pose_timeout to catch up
                 self._pose_arrived.wait_for(lambda: self.newest_pose_ns >= stamp_ns or self.poses.messages == 0,
@@ -132,6 +137,36 @@ class SceneFeed:
         if self.source_kind == "auto" and not self.posed and self.poses.messages == 0:
             return None, None  # no pose has ever arrived: static camera
         return None, "; ".join(errors) or "no pose received"
+
+    def up_at(self, camera_frame: str, stamp_ns: int) -> np.ndarray | None:
+        """Gravity up (unit vector, camera optical frame) from the world frame's z axis at the
+        camera pose of ``stamp_ns`` (ns), or up to :data:`UP_POSE_LAG` s before it when the
+        poses lag the frame; None when no pose is known then. Never waits for a pose."""
+        if self.source_kind == "none":
+            return None
+        stamp_ns, lag = int(stamp_ns), int(UP_POSE_LAG * 1e9)
+        stamps = [stamp_ns, stamp_ns - lag]
+        if 0 < stamp_ns - self.newest_pose_ns <= lag:
+            stamps.insert(1, self.newest_pose_ns)
+        for stamp in stamps:
+            T = None
+            if self.tf2 is not None:
+                try:
+                    T = self.tf2.T_world_camera(camera_frame, stamp)
+                except TransformLookupError:
+                    pass
+            if T is None and self.poses.messages > 0:
+                with self.pose_lock:
+                    try:
+                        T = self.poses.T_world_camera(camera_frame, stamp)
+                    except TransformLookupError:
+                        pass
+            if T is not None:
+                up = np.asarray(T, dtype=np.float64)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+                n = float(np.linalg.norm(up))
+                if np.isfinite(n) and n > 1e-6:
+                    return up / n
+        return None
 
     def update(self, objects: list, depth: np.ndarray | None, K: np.ndarray | None, stamp_ns: int,
                camera_frame: str, up: np.ndarray | None) -> bool:

@@ -113,7 +113,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
                    help="synchroniser queue size per topic, >= 1 (default 30)")
     s.add_argument("--depth-scale", type=ca.depth_scale, default=None,
                    help="metres per raw depth unit, > 0 (default: by encoding, 16UC1 = 0.001)")
-    s.add_argument("--up", type=ca.up_vector, help="fixed gravity-up vector in the camera optical frame, e.g. 0,-1,0")
+    s.add_argument("--up", type=ca.up_vector,
+                   help="fixed gravity-up vector in the camera optical frame, e.g. 0,-1,0 (default: the IMU's with "
+                        "--imu, else with the scene on the camera pose's (world z up), else estimated per frame)")
     s.add_argument("--size-mismatch", choices=("rescale", "skip"), default="rescale")
     s.add_argument("--no-detections", action="store_true", help="do not write the Detection3DArray topic")
     s.add_argument("--no-copy", action="store_true", help="write only the detector's topics, not the input")

@@ -36,7 +36,9 @@ JOIN_TIMEOUT_S = 5.0
 
 @dataclass
 class FrameSet:
-    """One synchronised input set waiting for the worker (``synced_at``: monotonic s)."""
+    """One synchronised input set waiting for the worker (``synced_at``: monotonic s; ``up``:
+    gravity taken at synchronisation, filled from the camera pose when the worker takes the
+    frame, None: estimated)."""
 
     image: Any
     depth: Any
@@ -176,6 +178,9 @@ class FrameScheduler:
         pf = job.frame = self._frame(fs)
         if pf is None:
             return job
+        frame_up = getattr(self.host, "frame_up", None)
+        if frame_up is not None:
+            fs.up = frame_up(fs, job.stamp, job.frame_id)
         det = self.host.detector
         td = time.perf_counter()
         try:

@@ -24,7 +24,7 @@ class StageLog:
         self.finished: list[int] = []
         self.last_timing: dict[str, float] = {}
 
-    def prepare(self, rgb, depth, K):
+    def prepare(self, rgb, depth, K, up=None):
         self.prepared.append(int(rgb[0, 0, 0]))
         return int(rgb[0, 0, 0])
 

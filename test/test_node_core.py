@@ -53,6 +53,7 @@ def test_valid_changes_reach_the_synchroniser_detector_and_imu():
 
 def test_up_by_source():
     assert Core().current_up() is None
+    assert Core(up_source="estimate").current_up() is None
     np.testing.assert_allclose(Core(up_source="fixed", up=[0.0, -2.0, 0.0]).current_up(), [0, -1, 0])
     c = Core(up_source="imu")
     assert c.current_up() is None and any("IMU" in t for _, t in c.lines)
@@ -88,3 +89,38 @@ def test_descriptor_fields_carry_ranges_and_choices():
     f = descriptor_fields(PARAMETERS["pose_source"])
     assert "odom" in f["additional_constraints"] and "integer_range" not in f
     assert descriptor_fields(PARAMETERS["scene_delete_misses"])["integer_range"] == (1, 1000)
+
+
+class Scene:
+    """A scene feed whose camera pose gives gravity ``up`` (None: no pose at any stamp)."""
+
+    def __init__(self, up):
+        self.up, self.asked = up, []
+
+    def up_at(self, frame_id, stamp_ns):
+        self.asked.append((frame_id, stamp_ns))
+        return None if self.up is None else np.asarray(self.up, dtype=np.float64)
+
+
+def test_frame_up_takes_the_pose_with_auto_and_pose_and_says_when_pose_has_none():
+    fs = SimpleNamespace(up=None)
+    c = Core()  # the default is auto
+    c.scene = Scene([0.0, -0.8, 0.6])
+    np.testing.assert_allclose(c.frame_up(fs, 123, "cam"), [0.0, -0.8, 0.6])
+    assert c.scene.asked == [("cam", 123)] and not c.lines
+    c.scene = Scene(None)  # auto without a pose: estimated, silently (static camera mode is normal)
+    assert c.frame_up(fs, 124, "cam") is None and not c.lines
+    p = Core(up_source="pose")
+    p.scene = Scene(None)
+    assert p.frame_up(fs, 125, "cam") is None and any("up_source=pose" in t for _, t in p.lines)
+    q = Core(up_source="pose", publish_scene=False)  # no scene feed at all
+    assert q.frame_up(fs, 126, "cam") is None and any("publish_scene" in t for _, t in q.lines)
+
+
+def test_frame_up_keeps_fixed_imu_and_estimate_choices():
+    fixed = Core(up_source="fixed", up=[0.0, 0.0, 1.0])
+    fixed.scene = Scene([0.0, -1.0, 0.0])
+    np.testing.assert_allclose(fixed.frame_up(SimpleNamespace(up=fixed.current_up()), 1, "cam"), [0, 0, 1])
+    est = Core(up_source="estimate")
+    est.scene = Scene([0.0, -1.0, 0.0])
+    assert est.frame_up(SimpleNamespace(up=None), 1, "cam") is None and not est.scene.asked

@@ -209,3 +209,32 @@ def test_feed_saves_and_continues_a_map(tmp_path):
         SceneFeed(params(world_frame="map"), Warnings()).load(out)
     with pytest.raises(OSError):
         again.load(tmp_path / "missing.json")
+
+
+def _tilted_odometry(stamp_ns: int, pitch_deg: float) -> SimpleNamespace:
+    """:func:`odometry` with the camera pitched down by ``pitch_deg`` about its x axis."""
+    a = -np.radians(pitch_deg)  # about the camera's x (right): its z (forward) turns towards y (down)
+    tilt = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
+    msg = odometry(stamp_ns, 0.0)
+    q = matrix_to_quaternion(R_WORLD_CAM @ tilt)
+    msg.pose.pose.orientation = SimpleNamespace(x=q[0], y=q[1], z=q[2], w=q[3])
+    return msg
+
+
+def _up(pitch_deg: float) -> np.ndarray:
+    a = np.radians(pitch_deg)  # pitched down: world up leans towards the camera's -z (backwards)
+    return np.array([0.0, -np.cos(a), -np.sin(a)])
+
+
+def test_up_at_is_the_world_z_in_the_camera_at_the_stamp_or_a_little_before():
+    feed = SceneFeed(params(pose_source="odom"), Warnings())
+    assert feed.up_at("cam", 10**8) is None  # no pose yet
+    feed.add_pose("odometry", _tilted_odometry(10**8, 10.0))
+    feed.add_pose("odometry", _tilted_odometry(2 * 10**8, 30.0))
+    np.testing.assert_allclose(feed.up_at("cam", 10**8), _up(10.0), atol=1e-6)
+    np.testing.assert_allclose(feed.up_at("cam", 15 * 10**7), _up(20.0), atol=1e-6)  # interpolated
+    # poses lagging the frame by less than UP_POSE_LAG: the pose just before; more: none
+    assert feed.up_at("cam", 25 * 10**7) is not None
+    assert feed.up_at("cam", 10**9) is None
+    assert feed.up_at("other_frame", 10**8) is None  # no chain to that frame: estimated, no error
+    assert SceneFeed(params(pose_source="none"), Warnings()).up_at("cam", 10**8) is None

@@ -35,9 +35,14 @@ R_WORLD_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
 class ChairDetector:
-    """A chair 2 m ahead standing on the floor (camera frame), every frame."""
+    """A chair 2 m ahead standing on the floor (camera frame), every frame; ``ups``: the
+    gravity each call was given."""
+
+    def __init__(self):
+        self.ups = []
 
     def detect(self, rgb, depth, K, boxes2d=None, up=None):
+        self.ups.append(up)
         return [Object3D("chair", 0.9, [0.0, CAM_HEIGHT - 0.45, 2.0], [0.5, 0.5, 0.9], np.eye(3))]
 
 
@@ -122,6 +127,10 @@ def test_scene_and_map_from_an_odometry_topic(scene_node):
     # surfaces: published when the objects change (a DELETEALL first, then outlines if any)
     assert wait_for(lambda: h.surfaces) and h.surfaces[-1].markers[0].action == 3
     assert len(h.surfaces) < len(h.scene)
+    # up_source auto: the detector got gravity from each frame's pose (world z in the optical frame)
+    ups = h.node.detector.ups
+    assert len(ups) >= 4 and all(u is not None for u in ups), ups
+    np.testing.assert_allclose(ups[-1], [0.0, -1.0, 0.0], atol=1e-6)
 
 
 def test_get_plan_answers_on_the_grid(scene_node):

@@ -179,3 +179,27 @@ def test_scene_in_continues_a_saved_map(walk_bag, tmp_path):
     p = argparse.ArgumentParser()
     configure_parser(p)
     assert str(scene_options(p.parse_args(["bag", "-o", "o", "--scene-in", str(first)])).scene_in) == str(first)
+
+
+def test_with_a_scene_the_detector_gets_gravity_from_each_frames_pose(walk_bag, tmp_path):
+    class UpRecorder(GTDetector):
+        def __init__(self, bag):
+            super().__init__(bag)
+            self.ups = []
+
+        def detect(self, rgb, depth, K, boxes2d=None, up=None):
+            self.ups.append(up)
+            return super().detect(rgb, depth, K, boxes2d, up)
+
+    det = UpRecorder(walk_bag)
+    replay_bag(walk_bag, tmp_path / "out", det, progress=False, scene=SceneOptions())
+    poses = read_world_sidecar(walk_bag)["poses"]
+    assert len(det.ups) == len(poses) == FRAMES
+    for up, p in zip(det.ups, poses):  # world z (up) in the camera's optical frame
+        np.testing.assert_allclose(up, np.asarray(p["T_world_camera"])[:3, :3].T @ [0.0, 0.0, 1.0], atol=1e-6)
+    fixed = UpRecorder(walk_bag)  # a fixed --up wins over the pose
+    replay_bag(walk_bag, tmp_path / "out2", fixed, progress=False, scene=SceneOptions(), up="0,0,1")
+    assert all(np.allclose(u, [0.0, 0.0, 1.0]) for u in fixed.ups)
+    plain = UpRecorder(walk_bag)  # no scene: no poses read, the detector estimates gravity
+    replay_bag(walk_bag, tmp_path / "out3", plain, progress=False)
+    assert plain.ups == [None] * FRAMES

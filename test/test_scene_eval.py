@@ -36,6 +36,17 @@ def test_perfect_detections_give_a_perfect_map(perfect):
     assert res["jitter_cm"] < 0.5
     assert res["grid_iou"] > 0.9
     assert res["stack_mAP"]["0.25"] <= res["map_mAP"]["0.25"] + 1e-9
+    assert res["object_iou"]["median"] > 0.9 and res["object_iou"]["0.5"] == 1.0
+
+
+def test_per_object_iou_counts_only_same_class_tracks(perfect):
+    from shape_detector.evaluation.scene_eval import _same_class_iou
+
+    g = [x for x in perfect.gt_world][:2]
+    right = Object3D(g[0].class_name, 0.9, g[0].center, g[0].size, g[0].rotation)
+    wrong = Object3D("bathtub" if g[1].class_name != "bathtub" else "bed", 0.9, g[1].center, g[1].size, g[1].rotation)
+    assert _same_class_iou([right, wrong], g) == pytest.approx([1.0, 0.0])
+    assert _same_class_iou([], g) == [0.0, 0.0] and _same_class_iou([right], []) == []
 
 
 def test_runner_up_copies_score_the_second_class_by_its_share():
@@ -89,3 +100,29 @@ def test_cli_runs_and_prints_json(monkeypatch, capsys):
     assert set(res["map_mAP"]) == {"0.25", "0.5"}
     args = p.parse_args(["--sequences", "0"])
     assert scene_cli.main(args) == 2
+    args = p.parse_args(["--sequences", "1", "--pose-noise", "0.01,0.5"])
+    assert scene_cli.main(args) == 2 and "pose noise" in capsys.readouterr().err
+
+
+def test_collect_feeds_the_map_the_noisy_poses_and_the_detector_their_gravity():
+    from shape_detector.evaluation.pose_noise import PoseNoise
+    from shape_detector.evaluation.scene_eval import collect
+
+    class Recording:
+        def __init__(self):
+            self.ups = []
+
+        def detect(self, rgb, depth, K, up=None):
+            self.ups.append(up)
+            return []
+
+    det = Recording()
+    noise = PoseNoise(drift=0.05, jitter_deg=2.0)
+    data = collect([3], 4, 96, 72, detector=det, pose_noise=noise)[0]
+    clean = collect([3], 4, 96, 72, detector=Recording())[0]
+    assert any(not np.allclose(a, b) for a, b in zip(data.poses, clean.poses))
+    for up, T in zip(det.ups, data.poses):
+        np.testing.assert_allclose(up, T[:3, :3].T @ [0.0, 0.0, 1.0])
+    est = Recording()
+    collect([3], 2, 96, 72, detector=est, up="estimate")
+    assert est.ups == [None, None]

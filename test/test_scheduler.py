@@ -136,3 +136,45 @@ def test_failed_rebuild_keeps_the_detector_and_says_why():
         sched.stop()
     assert host.detector is det and host.published == [7]
     assert any("cannot rebuild" in w for w in host.warnings)
+
+
+@pytest.mark.parametrize("pipeline", [True, False])
+def test_the_detector_gets_the_hosts_gravity_for_the_frame_and_publish_the_same(pipeline):
+    class Recording(SlowDetector):
+        def __init__(self):
+            super().__init__(0.0)
+            self.ups = []
+
+        def prepare(self, rgb, depth, K, boxes2d=None, up=None):
+            self.ups.append(up)
+            return super().prepare(rgb, depth, K)
+
+        def detect(self, rgb, depth, K, boxes2d=None, up=None):
+            return self.finish(self.prepare(rgb, depth, K, up=up))
+
+    class PosedHost(Host):
+        def __init__(self, detector):
+            super().__init__(detector)
+            self.asked, self.published_up = [], []
+
+        def frame_up(self, fs, stamp_ns, frame_id):
+            self.asked.append((stamp_ns, frame_id))
+            return np.array([0.0, -0.6, 0.8])
+
+        def publish(self, objects, stamp, frame_id, frame=None, up=None):
+            super().publish(objects, stamp, frame_id, frame, up)
+            self.published_up.append(up)
+
+    det = Recording()
+    host = PosedHost(det)
+    sched = FrameScheduler(host, pipeline)
+    try:
+        sched.offer(_set(1_000_000_007, host))
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not host.published:
+            time.sleep(0.01)
+    finally:
+        assert sched.stop()
+    assert host.asked == [(1_000_000_007, "cam")]
+    np.testing.assert_allclose(det.ups[0], [0.0, -0.6, 0.8])
+    np.testing.assert_allclose(host.published_up[0], [0.0, -0.6, 0.8])

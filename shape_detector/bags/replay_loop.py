@@ -46,9 +46,10 @@ class _InFlight:
 
 
 def _start_frame(entry: _InFlight, detector: Any, summary: Any, up_vec: Any, depth_scale: float | None,
-                 size_mismatch: str, submit: bool) -> None:
+                 size_mismatch: str, submit: bool, pose_up: Any = None) -> None:
     """Check one synchronised frame and start (``submit``: hand to the detector's workers) or
-    run its detection; failures are counted in ``summary``."""
+    run its detection; failures are counted in ``summary``. Gravity: ``up_vec`` (fixed), else
+    the frame's IMU gravity, else ``pose_up(frame)`` (the camera pose's), else estimated."""
     frame = entry.frame
     try:
         prepared = entry.prepared = frame.prepare(depth_scale=depth_scale, size_mismatch=size_mismatch)
@@ -58,6 +59,8 @@ def _start_frame(entry: _InFlight, detector: Any, summary: Any, up_vec: Any, dep
             summary.skipped["no valid depth"] += 1
             return
         entry.up = up_vec if up_vec is not None else frame.up
+        if entry.up is None and pose_up is not None:
+            entry.up = pose_up(frame)
         args = (prepared.rgb, prepared.depth, prepared.K)
         if submit:
             entry.job = detector.submit(*args, boxes2d=prepared.boxes2d, up=entry.up)
@@ -143,7 +146,7 @@ def replay_loop(reader: BagFrameReader, out: Any, detector: Any, summary: Any, b
         out.write_objects(objects, frame.stamp_ns, frame.frame_id)
         if scene is not None:  # one scene and map per frame; a skipped frame repeats the current state
             used = entry.prepared if entry.detected else None  # learn only from detected frames
-            scene.update(frame, used, objects, up_vec if up_vec is not None else frame.up)
+            scene.update(frame, used, objects, entry.up)
             scene.write(out, frame.stamp_ns)
         summary.frames_out += 1
         summary.objects += len(objects)
@@ -158,7 +161,8 @@ def replay_loop(reader: BagFrameReader, out: Any, detector: Any, summary: Any, b
             summary.synced += 1
             entry = _InFlight(frame, copies[:])
             copies.clear()
-            _start_frame(entry, detector, summary, up_vec, depth_scale, size_mismatch, submit=window > 0)
+            _start_frame(entry, detector, summary, up_vec, depth_scale, size_mismatch, submit=window > 0,
+                         pose_up=scene.up_at if scene is not None else None)
             in_flight.append(entry)
             while len(in_flight) > window:  # the workers busy, one frame queued behind them
                 write(in_flight.popleft())

@@ -147,6 +147,19 @@ class SceneRecorder:
         if self.poses is None and log is not None:
             log(f"scene: no camera pose in the bag, {source}")
 
+    def up_at(self, frame: Any) -> np.ndarray | None:
+        """Gravity up (unit vector, camera optical frame) from the world frame's z axis at the
+        frame's camera pose; None without poses or when the pose is not known at its stamp."""
+        if self.poses is None:
+            return None
+        try:
+            T = self.poses.T_world_camera(frame.frame_id, frame.stamp_ns)
+        except TransformLookupError:
+            return None
+        up = T[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+        n = float(np.linalg.norm(up))
+        return up / n if np.isfinite(n) and n > 1e-6 else None
+
     def update(self, frame: Any, prepared: Any, objects: list, up: np.ndarray | None) -> bool:
         """Add one frame (``prepared``: its decoded arrays, None when unusable); False when skipped."""
         if prepared is None:

@@ -41,6 +41,12 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
                    help="ground truth: objects seen in at least this many frames (default 3)")
     p.add_argument("--confirm-observations", type=int, default=None, help="SceneConfig.confirm_observations")
     p.add_argument("--delete-misses", type=int, default=None, help="SceneConfig.delete_misses")
+    p.add_argument("--up", choices=("pose", "estimate"), default="pose",
+                   help="gravity for the detector: pose (the camera pose's z axis, default; the node's "
+                   "up_source auto with a pose) or estimate (from each frame)")
+    p.add_argument("--pose-noise", default=None, metavar="D,Y,J,JD",
+                   help="poses as odometry reports them: drift D m per m travelled, heading drift Y deg per m, "
+                   "per-frame jitter J m and JD deg (e.g. 0.01,0.5,0.005,0.2); default: the true poses")
     p.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
     p.add_argument("--quiet", action="store_true", help="no per-sequence progress")
     add_detector_flags(p, "realtime")
@@ -61,13 +67,19 @@ def format_table(res: dict[str, Any], args: argparse.Namespace) -> str:
     seeds = f"{args.seed}..{args.seed + args.sequences - 1}"
     lines = [f"scene map: {res['sequences']} walk-throughs x {args.frames} frames at {args.width}x{args.height} "
              f"(seeds {seeds}), {res['objects']} objects seen in >= {args.min_frames} frames, "
-             f"{res['tracks']} published tracks",
+             f"{res['tracks']} published tracks; gravity {args.up}, "
+             + (f"poses with noise {args.pose_noise} (drift m/m, deg/m, jitter m, deg)" if args.pose_noise
+                else "true poses"),
              f"{'metric':30s} {'map':>9s} {'target':>9s} {'stacked':>9s}"]
     flat = {**{f"mAP@{k}": v for k, v in res["map_mAP"].items()}, **res}
     stacked = {f"mAP@{k}": v for k, v in res["stack_mAP"].items()}
     for key, label, target, fmt in ROWS:
         base = fmt.format(stacked[key]) if key in stacked else ""
         lines.append(f"{label:30s} {fmt.format(flat[key]):>9s} {target:>9s} {base:>9s}")
+    oi = res.get("object_iou")
+    if oi:
+        lines.append(f"per object, best same-class track: median 3D IoU {oi['median']:.3f}, "
+                     f"share >= 0.25 / 0.5: {oi['0.25']:.3f} / {oi['0.5']:.3f} (of {res['objects']})")
     hyp = res.get("map_mAP_runner_up")
     if hyp:
         lines.append("comparison only, each object also scored for its runner-up class: map mAP@0.25 / @0.5 "
@@ -81,17 +93,20 @@ def main(args: argparse.Namespace) -> int:
         print("shape-detector evaluate-scene: --sequences and --frames must be >= 1", file=sys.stderr)
         return 2
     from ..detector import ShapeDetector
+    from .pose_noise import parse_pose_noise
     from .scene_eval import collect, score_sequences
 
     try:
         detector = ShapeDetector(config_from_args(args))
         config = _config(args)
+        noise = parse_pose_noise(args.pose_noise) if args.pose_noise else None
     except (FileNotFoundError, ValueError) as e:
         print(f"shape-detector evaluate-scene: {e}", file=sys.stderr)
         return 2
     progress = None if args.quiet else (lambda s: print(s, file=sys.stderr))
     seeds = list(range(args.seed, args.seed + args.sequences))
-    data = collect(seeds, args.frames, args.width, args.height, detector=detector, progress=progress)
+    data = collect(seeds, args.frames, args.width, args.height, detector=detector, progress=progress, up=args.up,
+                   pose_noise=noise)
     res = score_sequences(data, config, min_frames=args.min_frames)
     if args.json:
         print(json.dumps(res, indent=2, sort_keys=True))
