@@ -11,6 +11,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -43,35 +44,47 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--radius", type=float, default=0.1, help="collision sphere radius (m)")
     p.add_argument("--agent-radius", type=float, default=0.2, help="planning agent radius (m)")
     p.add_argument("--json", default=None, help="also write the per-sequence and mean metrics here")
+    p.add_argument("--processes", type=int, default=1, metavar="N",
+                   help="walk-throughs in N worker processes, each with its own detector (default 1: here; "
+                   "with more, --workers 1 keeps one core per process)")
     p.add_argument("--save-maps", default=None, help="directory for the detector's maps (map_<seed>.json)")
     add_detector_flags(p, "realtime")
 
 
-def main(args: argparse.Namespace) -> int:
-    """Evaluate; prints per-sequence lines and the means with pass / FAIL per threshold."""
+def evaluate_seed(seed: int, detector: Any = None, save_dir: str | None = None, **kwargs: Any) -> dict[str, float]:
+    """:func:`~.ar_eval.evaluate_walkthrough` of ``seed``, its map saved as ``map_<seed>.json``
+    in ``save_dir`` when given (module level: worker processes run it)."""
     from .ar_eval import evaluate_walkthrough
 
-    if args.frames < 1 or not args.seeds:
-        print("evaluate-ar: need at least one seed and one frame", file=sys.stderr)
+    save = str(Path(save_dir) / f"map_{seed}.json") if save_dir else None
+    return evaluate_walkthrough(seed, detector=detector, save_map=save, **kwargs)
+
+
+def main(args: argparse.Namespace) -> int:
+    """Evaluate; prints per-sequence lines and the means with pass / FAIL per threshold."""
+    from .parallel import map_seeds
+
+    if args.frames < 1 or not args.seeds or args.processes < 1:
+        print("evaluate-ar: need at least one seed, one frame and one process", file=sys.stderr)
         return 2
-    detector = None
+    config = detector = None
     if not args.gt_map:
         from ..detector import ShapeDetector
 
         try:
-            detector = ShapeDetector(config_from_args(args))
+            config = config_from_args(args)
+            detector = ShapeDetector(config)  # bad settings or weights refused here, before any walk-through
         except (FileNotFoundError, ValueError) as e:
             print(f"evaluate-ar: {e}", file=sys.stderr)
             return 2
     rows = []
     if args.save_maps:
         Path(args.save_maps).mkdir(parents=True, exist_ok=True)
-    for seed in args.seeds:
-        t0 = time.perf_counter()
-        save = str(Path(args.save_maps) / f"map_{seed}.json") if args.save_maps and not args.gt_map else None
-        r = evaluate_walkthrough(seed, args.frames, args.width, args.height, detector=detector, use_gt_map=args.gt_map,
-                                 n_rays=args.rays, n_points=args.points, n_pairs=args.pairs, radius=args.radius,
-                                 agent_radius=args.agent_radius, save_map=save)
+    kw = dict(frames=args.frames, width=args.width, height=args.height, use_gt_map=args.gt_map, n_rays=args.rays,
+              n_points=args.points, n_pairs=args.pairs, radius=args.radius, agent_radius=args.agent_radius,
+              save_dir=args.save_maps if args.save_maps and not args.gt_map else None)
+    t0 = time.perf_counter()
+    for seed, r in zip(args.seeds, map_seeds(evaluate_seed, args.seeds, config, args.processes, detector, **kw)):
         rows.append(r)
         print(f"seed {seed} ({time.perf_counter() - t0:.0f} s): " + ", ".join(f"{k}={v:.3f}" for k, v in r.items()))
     mean = {k: _nanmean([r[k] for r in rows]) for k in rows[0]}

@@ -47,6 +47,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pose-noise", default=None, metavar="D,Y,J,JD",
                    help="poses as odometry reports them: drift D m per m travelled, heading drift Y deg per m, "
                    "per-frame jitter J m and JD deg (e.g. 0.01,0.5,0.005,0.2); default: the true poses")
+    p.add_argument("--processes", type=int, default=1, metavar="N",
+                   help="walk-throughs in N worker processes, each with its own detector (default 1: here; "
+                   "with more, --workers 1 keeps one core per process)")
     p.add_argument("--json", action="store_true", help="print the results as JSON instead of the table")
     p.add_argument("--quiet", action="store_true", help="no per-sequence progress")
     add_detector_flags(p, "realtime")
@@ -89,15 +92,16 @@ def format_table(res: dict[str, Any], args: argparse.Namespace) -> str:
 
 def main(args: argparse.Namespace) -> int:
     """Run the evaluation; 0 on success, 2 on bad options or a missing detector."""
-    if args.sequences < 1 or args.frames < 1:
-        print("shape-detector evaluate-scene: --sequences and --frames must be >= 1", file=sys.stderr)
+    if args.sequences < 1 or args.frames < 1 or args.processes < 1:
+        print("shape-detector evaluate-scene: --sequences, --frames and --processes must be >= 1", file=sys.stderr)
         return 2
     from ..detector import ShapeDetector
     from .pose_noise import parse_pose_noise
     from .scene_eval import collect, score_sequences
 
     try:
-        detector = ShapeDetector(config_from_args(args))
+        det_config = config_from_args(args)
+        detector = ShapeDetector(det_config)  # also with workers: bad settings or weights refused here, clearly
         config = _config(args)
         noise = parse_pose_noise(args.pose_noise) if args.pose_noise else None
     except (FileNotFoundError, ValueError) as e:
@@ -105,8 +109,9 @@ def main(args: argparse.Namespace) -> int:
         return 2
     progress = None if args.quiet else (lambda s: print(s, file=sys.stderr))
     seeds = list(range(args.seed, args.seed + args.sequences))
-    data = collect(seeds, args.frames, args.width, args.height, detector=detector, progress=progress, up=args.up,
-                   pose_noise=noise)
+    data = collect(seeds, args.frames, args.width, args.height, progress=progress, up=args.up,
+                   detector=detector if args.processes == 1 else None,
+                   pose_noise=noise, config=det_config, processes=args.processes)
     res = score_sequences(data, config, min_frames=args.min_frames)
     if args.json:
         print(json.dumps(res, indent=2, sort_keys=True))

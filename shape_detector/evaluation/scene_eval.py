@@ -66,45 +66,57 @@ class SequenceData:
 
 def collect(seeds: Sequence[int], frames: int, width: int = 640, height: int = 480,
             detector: Any = None, progress: Callable[[str], None] | None = None,
-            up: str = "pose", pose_noise: Any = None) -> list[SequenceData]:
-    """Render each walk-through and run the detector (``ShapeDetector()`` when None) on it;
-    ``up``: the gravity the detector gets, ``pose`` (the reported pose's z axis, as the node's
-    ``up_source: auto`` gives it) or ``estimate`` (the detector estimates it per frame).
-    ``pose_noise``: a :class:`~.pose_noise.PoseNoise` applied to the poses the map (and the
-    detector's gravity) gets, seeded by the sequence; None: the true poses."""
+            up: str = "pose", pose_noise: Any = None, config: Any = None, processes: int = 1) -> list[SequenceData]:
+    """Render each walk-through and run the detector on it (:func:`collect_one`), in seed
+    order; ``up``, ``pose_noise``: as there. The detector: ``detector``, else one built from
+    ``config`` (a ``DetectorConfig``; None: the defaults); with ``processes`` > 1 and no
+    ``detector``, that many worker processes each build their own (:func:`~.parallel.map_seeds`)."""
+    from .parallel import map_seeds
+
     if up not in ("pose", "estimate"):
         raise ValueError(f"up must be 'pose' or 'estimate', got {up!r}")
+    if config is None and detector is None:
+        from ..detector_config import preset
+
+        config = preset("realtime")
+    kw = dict(frames=frames, width=width, height=height, up=up, pose_noise=pose_noise)
+    out = []
+    for d in map_seeds(collect_one, seeds, config, 1 if detector is not None else processes, detector, **kw):
+        out.append(d)
+        if progress:
+            progress(f"sequence {d.seed}: {len(d.detections)} frames, {len(d.gt_world)} objects, "
+                     f"detector {np.mean(d.detect_ms):.0f} ms/frame")
+    return out
+
+
+def collect_one(seed: int, frames: int, width: int = 640, height: int = 480, detector: Any = None,
+                up: str = "pose", pose_noise: Any = None) -> SequenceData:
+    """Render walk-through ``seed`` and run ``detector`` on each frame. ``up``: the gravity
+    the detector gets, ``pose`` (the reported pose's z axis, as the node's ``up_source:
+    auto`` gives it) or ``estimate`` (the detector estimates it per frame). ``pose_noise``:
+    a :class:`~.pose_noise.PoseNoise` applied to the poses the map (and the detector's
+    gravity) gets, seeded by the sequence; None: the true poses."""
     from ..synth.generate import SynthConfig
     from ..synth.walkthrough import walkthrough
     from .pose_noise import PoseNoise, noisy_poses
 
-    if detector is None:
-        from ..detector import ShapeDetector
-
-        detector = ShapeDetector()
-    out = []
-    for seed in seeds:
-        wt = walkthrough(int(seed), frames, config=SynthConfig(width=width, height=height))
-        poses = noisy_poses(wt.poses, pose_noise or PoseNoise(), seed=int(seed))
-        dets, ms = [], []
-        n = len(wt.gt_world)
-        pixels = np.stack([_visible(f, n) for f in wt.frames]) if wt.frames else np.zeros((0, n))
-        visible = np.zeros((len(wt.frames), n))
-        for i, f in enumerate(wt.frames):
-            for g in f.objects:
-                if 1 <= g.instance_id <= n:
-                    visible[i, g.instance_id - 1] = g.visible_fraction
-        for f, T in zip(wt.frames, poses):
-            t0 = time.perf_counter()
-            g = T[:3, :3].T @ np.array([0.0, 0.0, 1.0]) if up == "pose" else None
-            dets.append(detector.detect(f.rgb, f.depth, f.K, up=g))
-            ms.append(1000.0 * (time.perf_counter() - t0))
-        out.append(SequenceData(int(seed), dets, poses, [f.depth for f in wt.frames], [f.K for f in wt.frames],
-                                [int(f.stamp_ns) for f in wt.frames], wt.gt_world, pixels, visible, ms))
-        if progress:
-            progress(f"sequence {seed}: {len(wt.frames)} frames, {len(wt.gt_world)} objects, "
-                     f"detector {np.mean(ms):.0f} ms/frame")
-    return out
+    wt = walkthrough(int(seed), frames, config=SynthConfig(width=width, height=height))
+    poses = noisy_poses(wt.poses, pose_noise or PoseNoise(), seed=int(seed))
+    dets, ms = [], []
+    n = len(wt.gt_world)
+    pixels = np.stack([_visible(f, n) for f in wt.frames]) if wt.frames else np.zeros((0, n))
+    visible = np.zeros((len(wt.frames), n))
+    for i, f in enumerate(wt.frames):
+        for g in f.objects:
+            if 1 <= g.instance_id <= n:
+                visible[i, g.instance_id - 1] = g.visible_fraction
+    for f, T in zip(wt.frames, poses):
+        t0 = time.perf_counter()
+        g = T[:3, :3].T @ np.array([0.0, 0.0, 1.0]) if up == "pose" else None
+        dets.append(detector.detect(f.rgb, f.depth, f.K, up=g))
+        ms.append(1000.0 * (time.perf_counter() - t0))
+    return SequenceData(int(seed), dets, poses, [f.depth for f in wt.frames], [f.K for f in wt.frames],
+                        [int(f.stamp_ns) for f in wt.frames], wt.gt_world, pixels, visible, ms)
 
 
 def _visible(frame: Any, n: int) -> np.ndarray:
