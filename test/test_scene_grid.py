@@ -114,3 +114,28 @@ def test_floor_under_the_camera_path_is_free_even_when_never_seen():
     still = SceneMap(SceneConfig(floor_z=0.0, camera_path_radius=0.0))
     still.update([], np.eye(4), None, None, 0)
     assert not (still.grid().data == FREE).any()
+
+
+def test_floor_is_the_lowest_level_enough_frames_agree_on():
+    from shape_detector.scene.grid import floor_from_estimates
+
+    assert floor_from_estimates([0.46] * 32 + [0.0] * 8) < 0.01  # a bed filled most frames
+    assert floor_from_estimates([0.0] * 40 + [-0.35, -0.36]) == 0.0  # two odd frames are not enough
+    assert floor_from_estimates([0.3, 0.5]) == 0.4  # too few to tell: the median
+    assert floor_from_estimates([None, 0.01, 0.02, 0.03]) == 0.02
+    assert floor_from_estimates([]) is None
+
+
+def test_scene_map_floor_survives_frames_filled_by_a_bed():
+    # a bed 0.5 m high fills the lower half of the view looking along +x (the wall behind it
+    # at 8 m); looking back along -x the camera sees the floor
+    bed = ((4.2, 0.0, 0.25), (7.4, 19.0, 0.5), 0.0)
+    m = SceneMap(SceneConfig(floor_z=None))
+    for i in range(6):
+        T = pose(0.0, 0.0, 1.2, 0.0)
+        m.update([], T, render(room([bed]), T), K, stamp_ns=i)
+    assert abs(m.floor_z - 0.5) < 0.03  # all it has seen so far is the bed's top
+    for i in range(6, 9):
+        T = pose(0.0, 0.0, 1.2, np.pi)
+        m.update([], T, render(room([bed]), T), K, stamp_ns=i)
+    assert abs(m.floor_z) < 0.02

@@ -18,7 +18,7 @@ the world (x, y) of the outer corner of cell (row 0, col 0).
 from __future__ import annotations
 
 import functools
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -212,21 +212,42 @@ def _pixel_rays(shape: tuple[int, ...], stride: int, fx: float, fy: float, cx: f
 
 
 def estimate_floor_z(z: np.ndarray, bin_m: float = 0.02, min_share: float = 0.03) -> float | None:
-    """World height of the floor from points' heights ``z`` (N,): the centre of the lowest
-    ``bin_m`` bin holding at least ``min_share`` of the points (None when too few)."""
+    """World height of the floor from points' heights ``z`` (N,): the lowest pair of
+    neighbouring ``bin_m`` bins holding at least ``min_share`` of the points (a floor's
+    noise spreads it over two), refined around the fuller of the two (None when too few)."""
     z = np.asarray(z, dtype=np.float64)
     z = z[np.isfinite(z)]
     if len(z) < 200:
         return None
     lo = np.floor(z.min() / bin_m) * bin_m
-    counts = np.bincount(((z - lo) / bin_m).astype(np.int64))
-    big = np.flatnonzero(counts >= min_share * len(z))
+    counts = np.append(np.bincount(((z - lo) / bin_m).astype(np.int64)), 0)
+    big = np.flatnonzero(counts[:-1] + counts[1:] >= min_share * len(z))
     if len(big) == 0:
         return None
     k = int(big[0])
+    k += int(counts[k + 1] > counts[k])
     # refine: the mean of the points of that bin and its neighbours
     sel = np.abs(z - (lo + (k + 0.5) * bin_m)) <= 1.5 * bin_m
     return float(np.mean(z[sel]))
+
+
+def floor_from_estimates(estimates: Sequence[float], tol: float = 0.04, min_frames: int = 3,
+                         min_share: float = 0.1) -> float | None:
+    """World height of the floor from per-frame estimates (:func:`estimate_floor_z`): the
+    median of the estimates within ``tol`` m of the lowest one that at least ``min_frames``
+    and ``min_share`` of them agree with; the median of all while none has that support
+    (None without estimates). A frame filled by a bed or a table top puts its "floor" on
+    that surface, so many frames may agree on a level above the floor; frames that see the
+    floor agree on the lowest level, and nothing real lies below it."""
+    e = np.sort(np.asarray([x for x in estimates if x is not None and np.isfinite(x)], dtype=np.float64))
+    if len(e) == 0:
+        return None
+    need = max(int(min_frames), int(np.ceil(min_share * len(e))))
+    for x in e:
+        near = e[np.abs(e - x) <= tol]
+        if len(near) >= need:
+            return float(np.median(near))
+    return float(np.median(e))
 
 
 def part_blocks(center: np.ndarray, size: np.ndarray, rotation: np.ndarray, floor_z: float,

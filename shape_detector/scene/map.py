@@ -36,7 +36,8 @@ import numpy as np
 from ..classes import CLASSES
 from ..types import Object3D
 from .association import associate, class_similarity, cost_matrix, duplicate_pairs, overlap
-from .grid import FloorMemory, NavGrid, build_grid, depth_points_world, estimate_floor_z, floor_cells_seen
+from .grid import (FloorMemory, NavGrid, build_grid, depth_points_world, estimate_floor_z, floor_cells_seen,
+                   floor_from_estimates)
 from .json_io import grid_from_dict, load_dict, scene_to_dict, structure_from_dict, write_json
 from .observe import to_observation
 from .surface import SurfaceMemory, split_points
@@ -126,6 +127,7 @@ class SceneMap:
         self.floor = FloorMemory(self.config.grid_resolution)
         self._next_id = 1
         self._floor_estimates: list[float] = []
+        self._floor_cache: float | None = None
         self._static_warned = False
         self._grid: NavGrid | None = None
         self._empty = EmptyParams()
@@ -202,10 +204,14 @@ class SceneMap:
 
     @property
     def floor_z(self) -> float:
-        """World z of the floor (given, or the median of the per-frame estimates; 0 before any)."""
+        """World z of the floor (given, or from the per-frame estimates,
+        :func:`~.grid.floor_from_estimates`; 0 before any)."""
         if self.config.floor_z is not None:
             return float(self.config.floor_z)
-        return float(np.median(self._floor_estimates)) if self._floor_estimates else 0.0
+        if self._floor_cache is None:  # reset when the estimates change
+            z = floor_from_estimates(self._floor_estimates)
+            self._floor_cache = 0.0 if z is None else z
+        return self._floor_cache
 
     def to_json(self) -> dict[str, Any]:
         """The map as a JSON-ready dict (schema in :mod:`.json_io`)."""
@@ -242,7 +248,7 @@ class SceneMap:
             m.floor = FloorMemory(g.resolution)
             rows, cols = np.nonzero(g.data == 0)
             m.floor.add(g.origin + (np.stack([cols, rows], axis=1) + 0.5) * g.resolution)
-            m._floor_estimates = [g.floor_z]
+            m._floor_estimates, m._floor_cache = [g.floor_z], None
         return m
 
     # -- steps ---------------------------------------------------------------------
@@ -357,6 +363,7 @@ class SceneMap:
             if fz is not None:
                 self._floor_estimates.append(fz)
                 self._floor_estimates = self._floor_estimates[-200:]
+                self._floor_cache = None
         near = pts[np.abs(pts[:, 2] - self.floor_z) <= c.floor_band, :2]
         cells = floor_cells_seen(depth, K, T, self.floor_z, c.grid_resolution, near, c.floor_band, known=self.floor)
         self.floor.add(np.concatenate([near, cells]))
