@@ -68,3 +68,13 @@ def test_collect_in_workers_equals_collect_here():
             assert [o.class_name for o in da] == [o.class_name for o in db]
             for oa, ob in zip(da, db):
                 np.testing.assert_allclose(oa.center, ob.center, atol=1e-3)
+
+
+def test_pooled_shares_weigh_walkthroughs_by_their_rays_and_pairs():
+    from shape_detector.evaluation.ar_cli import pooled_shares
+
+    rows = [{"ray_within_5cm": 1.0, "rays_used": 300.0, "plan_found": 1.0, "plan_pairs": 40.0, "plan_clear": 0.5},
+            {"ray_within_5cm": 0.0, "rays_used": 100.0, "plan_found": 0.0, "plan_pairs": 10.0,
+             "plan_clear": float("nan")}]
+    p = pooled_shares(rows)
+    assert p == {"ray_within_5cm": 0.75, "plan_found": 0.8, "plan_clear": 0.5}

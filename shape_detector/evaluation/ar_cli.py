@@ -51,6 +51,21 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     add_detector_flags(p, "realtime")
 
 
+def pooled_shares(rows: list[dict[str, float]]) -> dict[str, float]:
+    """The shares of :data:`THRESHOLDS` that count rays or paths, pooled over the
+    walk-throughs' rays and pairs: a walk-through with 3 testable pairs weighs 3, not as much as
+    one with 40 (the printed means weigh each walk-through once)."""
+    def share(key: str, weight: Any) -> float:
+        v = np.array([r[key] for r in rows], dtype=np.float64)
+        w = np.array([weight(r) for r in rows], dtype=np.float64)
+        ok = np.isfinite(v) & np.isfinite(w) & (w > 0)
+        return float((v[ok] * w[ok]).sum() / w[ok].sum()) if ok.any() else float("nan")
+
+    return {"ray_within_5cm": share("ray_within_5cm", lambda r: r["rays_used"]),
+            "plan_found": share("plan_found", lambda r: r["plan_pairs"]),
+            "plan_clear": share("plan_clear", lambda r: r["plan_pairs"] * r["plan_found"])}
+
+
 def evaluate_seed(seed: int, detector: Any = None, save_dir: str | None = None, **kwargs: Any) -> dict[str, float]:
     """:func:`~.ar_eval.evaluate_walkthrough` of ``seed``, its map saved as ``map_<seed>.json``
     in ``save_dir`` when given (module level: worker processes run it)."""
@@ -96,8 +111,11 @@ def main(args: argparse.Namespace) -> int:
               "surface_height_err_cm", "surface_within_2cm", "surface_matched", "surfaces", "objects_true",
               "objects_map"):
         print(f"  {k:>30}: {mean[k]:.3f}")
+    pooled = pooled_shares(rows)
+    print("  pooled over all rays / pairs instead of averaged over walk-throughs (comparison only): "
+          + ", ".join(f"{k} {v:.3f}" for k, v in pooled.items()))
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
-            json.dump({"seeds": list(args.seeds), "per_sequence": rows, "mean": mean, "gt_map": bool(args.gt_map)}, f,
-                      indent=1)
+            json.dump({"seeds": list(args.seeds), "per_sequence": rows, "mean": mean, "pooled": pooled,
+                       "gt_map": bool(args.gt_map)}, f, indent=1)
     return 0
