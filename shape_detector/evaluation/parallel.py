@@ -39,6 +39,8 @@ def map_seeds(fn: Callable[..., Any], seeds: Sequence[int], config: Any, process
     e.g. for the true map). ``processes`` <= 1: here, with ``local_detector`` or one built from
     ``config``; more: that many worker processes, each with its own detector (set the
     detector's ``workers`` / ``num_threads`` to fit the cores). A worker's failure is raised here.
+    The workers are spawned, so a script that calls this with ``processes`` > 1 needs the
+    ``if __name__ == "__main__":`` guard.
     """
     seeds = [int(s) for s in seeds]
     if processes <= 1 or len(seeds) <= 1:
