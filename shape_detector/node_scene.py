@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from .poses import CameraPoseSource, TransformLookupError
+from .poses import CameraPoseSource, TransformLookupError, camera_up
 from .scene import NavGrid, SceneConfig, SceneMap, SceneObject
 from .scene.json_io import write_json
 
@@ -161,11 +161,8 @@ class SceneFeed:
                         T = self.poses.T_world_camera(camera_frame, stamp)
                     except TransformLookupError:
                         pass
-            if T is not None:
-                up = np.asarray(T, dtype=np.float64)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
-                n = float(np.linalg.norm(up))
-                if np.isfinite(n) and n > 1e-6:
-                    return up / n
+            if T is not None and (up := camera_up(T)) is not None:
+                return up
         return None
 
     def update(self, objects: list, depth: np.ndarray | None, K: np.ndarray | None, stamp_ns: int,

@@ -130,3 +130,15 @@ def test_leading_slash_frames_are_the_same_frame() -> None:
     buf = TransformBuffer()
     buf.add("/odom", "/base_link", 0, (1.0, 0, 0), (0, 0, 0, 1), static=True)
     np.testing.assert_allclose(buf.lookup("odom", "base_link", 0)[:3, 3], [1.0, 0, 0])
+
+
+def test_camera_up_is_world_z_in_the_camera_frame() -> None:
+    from shape_detector.poses import camera_up
+
+    T = np.eye(4)
+    T[:3, :3] = [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]  # optical axes, looking along world +x
+    np.testing.assert_allclose(camera_up(T), [0.0, -1.0, 0.0])
+    T[:3, :3] *= 2.0  # a scaled rotation still gives a unit vector
+    np.testing.assert_allclose(camera_up(T), [0.0, -1.0, 0.0])
+    T[:3, :3] = 0.0
+    assert camera_up(T) is None

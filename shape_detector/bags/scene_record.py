@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..poses import CameraPoseSource, TransformLookupError
+from ..poses import CameraPoseSource, TransformLookupError, camera_up
 from .source import ODOMETRY_T, POSE_STAMPED_T, TF_T, BagReadError, open_bag
 
 if TYPE_CHECKING:
@@ -156,9 +156,7 @@ class SceneRecorder:
             T = self.poses.T_world_camera(frame.frame_id, frame.stamp_ns)
         except TransformLookupError:
             return None
-        up = T[:3, :3].T @ np.array([0.0, 0.0, 1.0])
-        n = float(np.linalg.norm(up))
-        return up / n if np.isfinite(n) and n > 1e-6 else None
+        return camera_up(T)
 
     def update(self, frame: Any, prepared: Any, objects: list, up: np.ndarray | None) -> bool:
         """Add one frame (``prepared``: its decoded arrays, None when unusable); False when skipped."""

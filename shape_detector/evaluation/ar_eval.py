@@ -270,6 +270,7 @@ def evaluate_walkthrough(seed: int, frames: int = 40, width: int = 640, height: 
         m = gt_map(truth)
     else:
         from ..ar.scene_data import load_scene
+        from ..poses import camera_up
         from ..scene import SceneMap
 
         if detector is None:
@@ -278,7 +279,7 @@ def evaluate_walkthrough(seed: int, frames: int = 40, width: int = 640, height: 
             detector = ShapeDetector()
         smap = SceneMap()
         for f, T in zip(wt.frames, wt.poses):
-            objs = detector.detect(f.rgb, f.depth, f.K, up=T[:3, :3].T @ np.array([0.0, 0.0, 1.0]))
+            objs = detector.detect(f.rgb, f.depth, f.K, up=camera_up(T))
             smap.update(objs, T, f.depth, f.K, int(f.stamp_ns))
         if save_map:
             smap.save_json(save_map)

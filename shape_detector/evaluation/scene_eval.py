@@ -98,6 +98,7 @@ def collect_one(seed: int, frames: int, width: int = 640, height: int = 480, det
     gravity) gets, seeded by the sequence; None: the true poses."""
     from ..synth.generate import SynthConfig
     from ..synth.walkthrough import walkthrough
+    from ..poses import camera_up
     from .pose_noise import PoseNoise, noisy_poses
 
     wt = walkthrough(int(seed), frames, config=SynthConfig(width=width, height=height))
@@ -112,7 +113,7 @@ def collect_one(seed: int, frames: int, width: int = 640, height: int = 480, det
                 visible[i, g.instance_id - 1] = g.visible_fraction
     for f, T in zip(wt.frames, poses):
         t0 = time.perf_counter()
-        g = T[:3, :3].T @ np.array([0.0, 0.0, 1.0]) if up == "pose" else None
+        g = camera_up(T) if up == "pose" else None
         dets.append(detector.detect(f.rgb, f.depth, f.K, up=g))
         ms.append(1000.0 * (time.perf_counter() - t0))
     return SequenceData(int(seed), dets, poses, [f.depth for f in wt.frames], [f.K for f in wt.frames],

@@ -5,7 +5,7 @@ No rclpy at import time; :mod:`.tf2_live` wraps ``tf2_ros`` for live nodes where
 
 from __future__ import annotations
 
-from .quaternion import invert_transform, make_transform, matrix_to_quaternion, quaternion_to_matrix, slerp
+from .quaternion import camera_up, invert_transform, make_transform, matrix_to_quaternion, quaternion_to_matrix, slerp
 from .sources import (
     CAMERA_PLACEHOLDER,
     POSE_KINDS,
@@ -27,6 +27,7 @@ __all__ = [
     "Tf2PoseLookup",
     "TransformBuffer",
     "TransformLookupError",
+    "camera_up",
     "invert_transform",
     "make_transform",
     "matrix_to_quaternion",

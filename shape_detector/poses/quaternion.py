@@ -75,3 +75,11 @@ def invert_transform(T: np.ndarray) -> np.ndarray:
     out[:3, :3] = R.T
     out[:3, 3] = -R.T @ T[:3, 3]
     return out
+
+
+def camera_up(T_world_camera: np.ndarray) -> np.ndarray | None:
+    """Gravity up as a unit vector in the camera frame: the world frame's z axis (z up) seen
+    from the camera of the (4,4) pose ``T_world_camera``; None for a degenerate rotation."""
+    up = np.asarray(T_world_camera, dtype=np.float64)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+    n = float(np.linalg.norm(up))
+    return up / n if np.isfinite(n) and n > 1e-6 else None
