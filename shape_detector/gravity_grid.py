@@ -5,6 +5,7 @@ Frames: camera optical frame (x right, y down, z forward), metres."""
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import cv2
@@ -12,6 +13,18 @@ import numpy as np
 
 _REF_POINTS = 160 * 120  # point-count thresholds are for a VGA frame at stride 4
 _NORMAL_K = (2, 0)  # central-difference half-baselines in cells: near, far (beyond 2.5 m; 0: off)
+_SCRATCH = threading.local()  # per-thread reusable work arrays (make_grid, colour links)
+
+
+def _scratch(name: str, shape: tuple[int, ...], dtype: type = np.float32) -> np.ndarray:
+    """A reusable per-thread work array ``name`` (contents undefined). Full-resolution
+    temporaries allocated afresh each frame are returned to the OS and page-faulted back
+    in on the next one, which costs more than the cheap passes that fill them."""
+    bufs: dict[str, np.ndarray] = _SCRATCH.__dict__.setdefault("bufs", {})
+    a = bufs.get(name)
+    if a is None or a.shape != shape or a.dtype != dtype:
+        a = bufs[name] = np.empty(shape, dtype)
+    return a
 
 
 @dataclass
@@ -59,16 +72,18 @@ def make_grid(depth: np.ndarray, K: np.ndarray, stride: int | None = 4, max_dept
     H, W = depth.shape
     s = auto_stride((H, W)) if not stride else max(1, int(stride))
     h, w = H // s, W // s
-    dc = np.array(depth[: h * s, : w * s], dtype=np.float32, order="C")  # copy
+    # work copy (float32) in a reused buffer; nothing returned refers to it
+    dc = _scratch("depth", (h * s, w * s))
+    np.copyto(dc, depth[: h * s, : w * s], casting="unsafe")
     cv2.patchNaNs(dc, 0.0)
     cv2.threshold(dc, float(max_depth), 0.0, cv2.THRESH_TOZERO_INV, dst=dc)
     cv2.threshold(dc, 0.0, 0.0, cv2.THRESH_TOZERO, dst=dc)  # negatives / inf -> 0
-    okf = cv2.threshold(dc, 0.0, 1.0, cv2.THRESH_BINARY)[1]
+    okf = cv2.threshold(dc, 0.0, 1.0, cv2.THRESH_BINARY, dst=_scratch("valid", dc.shape))[1]
     if s > 1:
         area = cv2.INTER_AREA
         frac = cv2.resize(okf, (w, h), interpolation=area)
         msum = cv2.resize(dc, (w, h), interpolation=area)
-        alt = cv2.addWeighted(dc, 1.0, okf, -1e4, 1e4)  # invalid -> 1e4
+        alt = cv2.addWeighted(dc, 1.0, okf, -1e4, 1e4, dst=_scratch("alt", dc.shape))  # invalid -> 1e4
         dmin = _block_reduce(alt, s, np.minimum)
         dmax = _block_reduce(dc, s, np.maximum)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -99,7 +114,7 @@ def make_grid(depth: np.ndarray, K: np.ndarray, stride: int | None = 4, max_dept
     rnormals = np.zeros((h, w, 3), np.float32)
     rvalid = np.zeros((h, w), bool)
     if h >= 2 * _NORMAL_K[0] + 1 and w >= 2 * _NORMAL_K[0] + 1:
-        n1, g1 = _raw_normals(X, Y, Z, msm, _NORMAL_K[0])
+        n1, g1 = _raw_normals(X, Y, Z, msm, _NORMAL_K[0], out=_scratch("n1", (h, w, 3)))
         if _NORMAL_K[1] and h >= 7 and w >= 7:
             # far away the depth noise swamps short baselines: 3-block differences there
             n3_, g3 = _raw_normals(X, Y, Z, msm, _NORMAL_K[1])
@@ -109,14 +124,15 @@ def make_grid(depth: np.ndarray, K: np.ndarray, stride: int | None = 4, max_dept
         else:
             nraw, good = n1, g1
         # smooth (3x3 mean of unit normals); keep normals whose neighbourhood agrees
-        nb = cv2.blur(nraw, (3, 3), borderType=cv2.BORDER_CONSTANT)
+        # (h, w, 3) temporaries in reused buffers, see _scratch
+        nb = cv2.blur(nraw, (3, 3), dst=_scratch("nb", (h, w, 3)), borderType=cv2.BORDER_CONSTANT)
         gcount = cv2.blur(good.astype(np.float32), (3, 3), borderType=cv2.BORDER_CONSTANT)
-        ln = np.sqrt(cv2.transform(cv2.multiply(nb, nb), np.ones((1, 3), np.float32)))
+        ln = np.sqrt(cv2.transform(cv2.multiply(nb, nb, dst=_scratch("nb2", (h, w, 3))), np.ones((1, 3), np.float32)))
         keep = good & (ln > 0.85 * gcount) & (gcount > 0.5)
         keep[0, :] = keep[-1, :] = False
         keep[:, 0] = keep[:, -1] = False
-        unit = nb / np.maximum(ln, 1e-12)[..., None]
-        normals[:] = unit * keep[..., None]
+        unit = np.divide(nb, np.maximum(ln, 1e-12)[..., None], out=_scratch("unit", (h, w, 3)))
+        np.multiply(unit, keep[..., None], out=normals)
         nvalid[:] = keep
         rnormals[:] = unit
         rvalid[:] = gcount > 0.6
@@ -125,19 +141,24 @@ def make_grid(depth: np.ndarray, K: np.ndarray, stride: int | None = 4, max_dept
 
 def _block_reduce(a: np.ndarray, s: int, op) -> np.ndarray:
     """``op`` (np.minimum / np.maximum) over each ``s`` x ``s`` block of ``a`` (shape divisible)."""
-    r = a[0::s]
-    for i in range(1, s):
-        r = op(r, a[i::s])
-    c = r[:, 0::s]
-    for j in range(1, s):
-        c = op(c, r[:, j::s])
+    if s == 1:
+        return a
+    # accumulate in place: one row-reduced and one block-reduced array, not 2 (s - 1)
+    r = op(a[0::s], a[1::s])
+    for i in range(2, s):
+        op(r, a[i::s], out=r)
+    c = op(r[:, 0::s], r[:, 1::s])
+    for j in range(2, s):
+        op(c, r[:, j::s], out=c)
     return c
 
 
-def _raw_normals(X: np.ndarray, Y: np.ndarray, Z: np.ndarray, m: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+def _raw_normals(X: np.ndarray, Y: np.ndarray, Z: np.ndarray, m: np.ndarray, k: int,
+                 out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Unit normals (h,w,3) facing the camera from central differences over +-``k`` cells
     (0 at the border, at invalid cells and across depth discontinuities) and their mask.
-    ``X, Y, Z``: block-mean points with 0 where ``m`` (valid) is False."""
+    ``X, Y, Z``: block-mean points with 0 where ``m`` (valid) is False; ``out``: optional
+    (h,w,3) float32 array to write the normals to (overwritten entirely)."""
     h, w = Z.shape
     c = (slice(k, h - k), slice(k, w - k))
     L, Rt = (slice(k, h - k), slice(0, w - 2 * k)), (slice(k, h - k), slice(2 * k, w))
@@ -154,9 +175,15 @@ def _raw_normals(X: np.ndarray, Y: np.ndarray, Z: np.ndarray, m: np.ndarray, k: 
     facing = nx * X[c] + ny * Y[c] + nz * zi  # orient towards the camera (n . p < 0)
     inv = gi / np.maximum(nrm, 1e-12)
     scale = np.where(facing > 0, -inv, inv).astype(np.float32)
-    out = np.zeros((h, w, 3), np.float32)
+    if out is None:
+        out = np.zeros((h, w, 3), np.float32)
+    else:
+        out.fill(0.0)
     good = np.zeros((h, w), bool)
-    out[c] = np.stack([nx * scale, ny * scale, nz * scale], axis=-1)
+    oc = out[c]  # components written in place (no stacked temporary)
+    np.multiply(nx, scale, out=oc[..., 0])
+    np.multiply(ny, scale, out=oc[..., 1])
+    np.multiply(nz, scale, out=oc[..., 2])
     good[c] = gi
     return out, good
 

@@ -16,13 +16,51 @@ if TYPE_CHECKING:
 
 #: stats rows: umin vmin umax vmax xmin ymin xmax ymax hmax hmin; sign turning all into minima
 _SIGN = np.array([1, 1, -1, -1, 1, 1, -1, -1, -1, 1], np.float64)
+#: columns of ``[mins | maxs]`` of (height, col, row, x, y) in stats-row order
+_STATS_COLS = np.array([1, 2, 6, 7, 3, 4, 8, 9, 5, 0], np.int64)
+
+
+def _stats_rows(mins: np.ndarray, maxs: np.ndarray) -> np.ndarray:
+    """Stats rows (umin vmin umax vmax xmin ymin xmax ymax hmax hmin) from per-group
+    minima / maxima (m, 5) of (height, col, row, x, y) -- one gather, no per-column stack."""
+    return np.concatenate([mins, maxs], 1)[:, _STATS_COLS]
+
+
+def _stable_order(lab: np.ndarray) -> np.ndarray:
+    """``np.argsort(lab, kind="stable")`` of integer labels; labels in [0, 65536) are sorted
+    as uint16, for which numpy uses a radix sort (the same permutation, far faster)."""
+    if lab.size and int(lab.min()) >= 0 and int(lab.max()) < 65536:
+        return np.argsort(lab.astype(np.uint16), kind="stable")
+    return np.argsort(lab, kind="stable")
+
+
+def _sorted_unique(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(a, return_counts=True)`` of a 1D integer array by one sort (cheaper than
+    ``np.unique``'s hashing for the few thousand keys of a frame)."""
+    if a.size == 0:
+        return np.sort(a), np.zeros(0, np.int64)
+    if int(a.min()) >= 0 and int(a.max()) < 1 << 32:
+        # two stable 16-bit radix passes (low half, then high half) sort 32-bit keys
+        # several times faster than np.sort of int64
+        o = np.argsort((a & 0xFFFF).astype(np.uint16), kind="stable")
+        o = o[np.argsort((a[o] >> 16).astype(np.uint16), kind="stable")]
+        s = a[o]
+    else:
+        s = np.sort(a)
+    first = np.flatnonzero(np.r_[True, s[1:] != s[:-1]])
+    return s[first], np.diff(np.r_[first, s.size])
+
+
+def _group_starts(sorted_lab: np.ndarray) -> np.ndarray:
+    """Start index of each run of equal values in the sorted labels ``sorted_lab`` (non-empty)."""
+    return np.flatnonzero(np.r_[True, sorted_lab[1:] != sorted_lab[:-1]])
 
 
 def _containment_pairs(cell: np.ndarray, sid: np.ndarray, S: int, contain_frac: float) -> tuple[np.ndarray, np.ndarray]:
     """Pairs ``(i, j)`` of segments (labels ``sid`` 0..S-1 of nodes in footprint cells ``cell``)
     where at least ``contain_frac`` of j's footprint cells are also i's (j mostly inside i's
     footprint), from the segment pairs sharing a footprint cell."""
-    key = np.unique(cell * S + sid)
+    key = _sorted_unique(cell * S + sid)[0]
     kc, ks = np.divmod(key, S)
     area = np.bincount(ks, minlength=S).astype(np.float64)
     pa, pb = [], []
@@ -34,7 +72,7 @@ def _containment_pairs(cell: np.ndarray, sid: np.ndarray, S: int, contain_frac: 
         pb.append(ks[k:][same])
     if not pa:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    pk, shared = np.unique(np.concatenate(pa) * S + np.concatenate(pb), return_counts=True)
+    pk, shared = _sorted_unique(np.concatenate(pa) * S + np.concatenate(pb))
     p1, p2 = np.divmod(pk, S)
     ci = np.concatenate([p1, p2])  # container candidates
     cj = np.concatenate([p2, p1])
@@ -69,7 +107,9 @@ class HypothesisBuilder:
         occ[cell] = 1
         occ = cv2.dilate(occ.reshape(CH, CW), np.ones((3, 3), np.uint8))
         _, blab = cv2.connectedComponents(occ, connectivity=8, ltype=cv2.CV_32S)
-        V = np.stack([hs, gu, gv, xs, ys], axis=1).astype(np.float64)
+        # columns filled in place: np.stack of mixed dtypes plus a cast costs far more
+        V = np.empty((len(idx), 5), np.float64)
+        V[:, 0], V[:, 1], V[:, 2], V[:, 3], V[:, 4] = hs, gu, gv, xs, ys
         return dict(idx=idx, cell=cell, blob=blab.ravel()[cell], V=V, grid_shape=(CH, CW))
 
     def _hypotheses(self, grid, pd: dict, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -89,9 +129,11 @@ class HypothesisBuilder:
             npts = np.bincount(sid, minlength=S)
 
         # per-segment min / max of (height, col, row, x, y): one sort, two reduceat calls
-        order = np.argsort(sid, kind="stable")
-        starts = np.searchsorted(sid[order], np.arange(S))
-        V = pd["V"][order]
+        # (labels 0..S-1 all present: segment i starts after the points of segments < i)
+        order = _stable_order(sid)
+        starts = np.zeros(S, np.int64)
+        np.cumsum(npts[:-1], out=starts[1:])
+        V = np.take(pd["V"], order, axis=0)
         mins = np.minimum.reduceat(V, starts, axis=0)
         maxs = np.maximum.reduceat(V, starts, axis=0)
         hmin, umin, vmin, xmin, ymin = mins.T
@@ -101,25 +143,33 @@ class HypothesisBuilder:
         below = hmax[cj] <= hmin[ci] + cfg.below_margin
 
         # stats columns: umin vmin umax vmax xmin ymin xmax ymax hmax (max ones negated -> all mins)
-        AT = np.stack([umin, vmin, -umax, -vmax, xmin, ymin, -xmax, -ymax, -hmax, hmin], axis=1)
+        AT = _stats_rows(mins, maxs) * _SIGN
         sign = _SIGN
 
+        # unions by sorting and reduceat: np.minimum.at on stats rows is far slower
         def union_rows(Ii, Jj):
             """Per segment i: union of i and the segments j of the pairs (i, j)."""
             out = AT.copy()
-            np.minimum.at(out, Ii, AT[Jj])
             n = npts.astype(np.int64).copy()
-            np.add.at(n, Ii, npts[Jj])
+            if len(Ii):
+                o = _stable_order(Ii)
+                Is, Js = Ii[o], Jj[o]
+                first = _group_starts(Is)
+                rows = Is[first]
+                out[rows] = np.minimum(out[rows], np.minimum.reduceat(np.take(AT, Js, axis=0), first, axis=0))
+                n[rows] += np.add.reduceat(npts[Js], first)
             return out * sign, n
 
         def union_labels(lab):
             """Union per label of ``lab`` (S,): (stats rows, counts) of the distinct labels."""
             L = int(lab.max()) + 1
-            out = np.full((L, 10), np.inf)
-            np.minimum.at(out, lab, AT)
+            o = _stable_order(lab)
+            ls = lab[o]
+            first = _group_starts(ls)
+            u = ls[first]
+            out = np.minimum.reduceat(np.take(AT, o, axis=0), first, axis=0)
             n = np.bincount(lab, weights=npts, minlength=L)
-            u = np.unique(lab)
-            return out[u] * sign, n[u]
+            return out * sign, n[u]
 
         seed = np.flatnonzero(npts >= cfg.min_points)
         parts = []  # (stats (m, 9), npts (m,), score, kind)
@@ -136,13 +186,15 @@ class HypothesisBuilder:
         st, n = union_labels(segblob)
         parts.append((st, n, 0.6, "blob"))
         if cfg.split_length > 0:
-            parts.extend(self._equal_splits(pd, sid, S, npts, xmin, xmax, ymin, ymax))
+            parts.extend(self._equal_splits(pd, sid, S, npts, xmin, xmax, ymin, ymax, V_seg=V, seg_starts=starts))
         return self._finalize(grid, parts)
 
-    def _equal_splits(self, pd: dict, sid, S, npts, xmin, xmax, ymin, ymax) -> list:
+    def _equal_splits(self, pd: dict, sid, S, npts, xmin, xmax, ymin, ymax, V_seg: np.ndarray | None = None,
+                      seg_starts: np.ndarray | None = None) -> list:
         """Long segments (a row of equal dressers / night stands, fronts flush, same
         material) cut into 2 or 3 equal parts along their footprint's main axis; parts and
-        neighbouring pairs become hypotheses."""
+        neighbouring pairs become hypotheses. ``V_seg`` / ``seg_starts``: ``pd["V"]`` stably sorted
+        by segment and each segment's first row there (optional; saves a mask per segment)."""
         cfg = self.config
         diag = np.hypot(xmax - xmin, ymax - ymin)
         cand = np.flatnonzero((diag > cfg.split_length) & (npts >= 30))
@@ -153,26 +205,27 @@ class HypothesisBuilder:
         out = []
         sign = _SIGN
         for i in cand:
-            Vi = V[sid == i]
+            # a stable sort keeps the point order, so the slice equals V[sid == i]
+            Vi = V[sid == i] if V_seg is None or seg_starts is None else V_seg[seg_starts[i] : seg_starts[i] + npts[i]]
             xy = Vi[:, 3:5] - Vi[:, 3:5].mean(0)
             cxx, cxy, cyy = (xy[:, 0] ** 2).mean(), (xy[:, 0] * xy[:, 1]).mean(), (xy[:, 1] ** 2).mean()
             a = 0.5 * np.arctan2(2 * cxy, cxx - cyy)
             t = xy[:, 0] * np.cos(a) + xy[:, 1] * np.sin(a)
             o = np.argsort(t)
-            ts, Vs = t[o], Vi[o]
+            ts, Vs = t[o], np.take(Vi, o, axis=0)
             m = len(ts)
             lo, hi = ts[int(0.02 * (m - 1))], ts[int(0.98 * (m - 1))]
             for k in (2, 3):
                 if (hi - lo) / k < 0.35:
                     continue
-                starts = np.r_[0, np.searchsorted(ts, lo + (hi - lo) * np.arange(1, k) / k)]
-                if np.any(np.diff(np.r_[starts, m]) <= 0):
+                bounds = np.empty(k + 1, np.int64)  # part starts, then the end
+                bounds[0], bounds[k] = 0, m
+                bounds[1:k] = np.searchsorted(ts, lo + (hi - lo) * np.arange(1, k) / k)
+                n = np.diff(bounds)
+                if np.any(n <= 0):
                     continue
-                mins = np.minimum.reduceat(Vs, starts, axis=0)
-                maxs = np.maximum.reduceat(Vs, starts, axis=0)
-                st = np.stack([mins[:, 1], mins[:, 2], maxs[:, 1], maxs[:, 2], mins[:, 3], mins[:, 4],
-                               maxs[:, 3], maxs[:, 4], maxs[:, 0], mins[:, 0]], 1)
-                n = np.diff(np.r_[starts, m])
+                starts = bounds[:k]
+                st = _stats_rows(np.minimum.reduceat(Vs, starts, axis=0), np.maximum.reduceat(Vs, starts, axis=0))
                 out.append((st, n, 0.55, f"split{k}"))
                 if k == 3:  # neighbouring pairs
                     pair = np.minimum(st[:-1] * sign, st[1:] * sign) * sign
@@ -239,10 +292,9 @@ class HypothesisBuilder:
         _, lab = cv2.connectedComponents(img, connectivity=4, ltype=cv2.CV_32S)
         clab = lab[::2, ::2]
         plab = clab.ravel()[cell]
-        st, n = _label_stats(pd["V"], plab)
+        st, n, ul = _label_groups(pd["V"], plab)
         parts = [(st, n, 0.75, "layer")]
         # pairs of layers meeting at a step (a chair's back and seat, a bed and its headboard)
-        ul = np.unique(plab)
         pos = np.full(int(clab.max()) + 1, -1, np.int64)
         pos[ul] = np.arange(len(ul))
         pairs = []
@@ -252,7 +304,7 @@ class HypothesisBuilder:
         pr = np.concatenate(pairs).astype(np.int64)
         if len(pr):
             big = int(pr.max()) + 1
-            pk = np.unique(pr[:, 0] * big + pr[:, 1])
+            pk = _sorted_unique(pr[:, 0] * big + pr[:, 1])[0]
             pr = np.stack([pk // big, pk % big], 1)
             i, j = pos[pr[:, 0]], pos[pr[:, 1]]
             okp = (i >= 0) & (j >= 0)
@@ -268,19 +320,19 @@ class HypothesisBuilder:
 def _label_stats(V: np.ndarray, lab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per distinct label of points: stats rows (umin vmin umax vmax xmin ymin xmax ymax
     hmax hmin) from ``V`` (n, 5) = (height, col, row, x, y), and point counts."""
-    order = np.argsort(lab, kind="stable")
-    ls = lab[order]
-    starts = np.flatnonzero(np.r_[True, ls[1:] != ls[:-1]])
-    Vs = V[order]
-    mins = np.minimum.reduceat(Vs, starts, axis=0)
-    maxs = np.maximum.reduceat(Vs, starts, axis=0)
-    n = np.diff(np.r_[starts, len(ls)])
-    st = np.stack(
-        [mins[:, 1], mins[:, 2], maxs[:, 1], maxs[:, 2], mins[:, 3], mins[:, 4],
-         maxs[:, 3], maxs[:, 4], maxs[:, 0], mins[:, 0]],
-        1,
-    )
+    st, n, _ = _label_groups(V, lab)
     return st, n
+
+
+def _label_groups(V: np.ndarray, lab: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_label_stats` plus the distinct labels (ascending) the rows belong to."""
+    order = _stable_order(lab)
+    ls = lab[order]
+    starts = _group_starts(ls)
+    Vs = np.take(V, order, axis=0)
+    n = np.diff(np.r_[starts, len(ls)])
+    st = _stats_rows(np.minimum.reduceat(Vs, starts, axis=0), np.maximum.reduceat(Vs, starts, axis=0))
+    return st, n, ls[starts]
 
 
 def _components(n: int, ci: np.ndarray, cj: np.ndarray) -> np.ndarray:

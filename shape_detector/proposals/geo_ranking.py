@@ -90,11 +90,12 @@ def _dedup(boxes: np.ndarray, thr: float, iou: np.ndarray | None = None, limit: 
     keep: list[int] = []
     i = 0
     while len(keep) < limit:
-        rest = np.flatnonzero(~suppressed[i:])
-        if rest.size == 0:
+        rest = suppressed[i:]
+        j = int(rest.argmin())  # first box not suppressed (argmin of bools: first False)
+        if rest[j]:
             break
-        i += int(rest[0])
+        i += j
         keep.append(i)
-        suppressed |= iou[i] > thr
+        np.logical_or(suppressed, iou[i] > thr, out=suppressed)
         suppressed[i] = True
     return keep

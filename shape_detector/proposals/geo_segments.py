@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 
 from ..gravity import DepthGrid
+from ..gravity_grid import _scratch
 
 if TYPE_CHECKING:
     from .geometric import GeometricConfig, ProposalDebug
@@ -93,8 +94,13 @@ class Segmenter:
             img = np.clip(img, 0, 255).astype(np.uint8)
         if s > 1 and s & (s - 1) == 0:  # power of two: repeated exact halvings (bilinear at
             small = img  # scale 1/2 averages 2x2 blocks), 4x faster than INTER_AREA on uint8
+            level = 0
             while small.shape[0] > h:
-                small = cv2.resize(small, (small.shape[1] // 2, small.shape[0] // 2), interpolation=cv2.INTER_LINEAR)
+                hw = (small.shape[0] // 2, small.shape[1] // 2)
+                # into reused buffers: a fresh half-resolution image per frame is page-faulted in
+                buf = _scratch(f"rgb_half{level}", (*hw, small.shape[2]), np.uint8)
+                small = cv2.resize(small, (hw[1], hw[0]), dst=buf, interpolation=cv2.INTER_LINEAR)
+                level += 1
         else:
             small = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA) if s > 1 else img
         lab = cv2.cvtColor(small, cv2.COLOR_RGB2Lab)

@@ -77,13 +77,16 @@ class WallFinder:
         behind_loc = (bh & (along > lo_a[:, None]) & (along < hi_a[:, None])).sum(1)
         good &= (behind_all <= 0.05 * nb + 10) | ((hi_h >= 2.0) & (behind_loc <= cfg.wall_behind_frac * nb + 10))
         walls: list[tuple[np.ndarray, float]] = []
-        for k in np.flatnonzero(good):
+        good_idx = np.flatnonzero(good)
+        # the on-wall tolerance (m) per grid point: the same for every candidate
+        gtol = cfg.wall_tol + 0.003 * z * z if len(good_idx) else None
+        for k in good_idx:
             nk, rk = nvec[k].astype(np.float64), float(r0[k])
             if any(abs(rk - r1) < 0.1 and nk @ n1 > 0.995 for n1, r1 in walls):
                 continue
             # furniture faces end in convex edges (to their top / side faces), walls in
             # concave corners, occlusions or the image border
-            on = obj & (np.abs(X * nk[0] + Y * nk[1] - rk) < cfg.wall_tol + 0.003 * z * z)
+            on = obj & (np.abs(X * nk[0] + Y * nk[1] - rk) < gtol)
             convex = self._convex_boundary(on, obj, feats)
             self.debug.wall_candidates.append(
                 dict(n=nk, rho=rk, nb=int(nb[k]) * sub, h=(lo_h[k], hi_h[k]), a=hi_a[k] - lo_a[k], convex=convex,

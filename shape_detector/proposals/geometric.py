@@ -156,7 +156,9 @@ class GeometricProposer(WallFinder, Segmenter, HypothesisBuilder):
         P = grid.points
         valid = grid.valid
         R = upright_rotation(grav.up)
-        Pf = np.where(valid[..., None], P, 0.0).astype(np.float32)
+        # invalid points (NaN) -> 0 by a masked store: a broadcast np.where is several times slower
+        Pf = np.array(P, dtype=np.float32)
+        Pf[~valid] = 0.0
         Q = Pf @ R.astype(np.float32)  # upright: x right, y forward, z up
         X, Y, Zu = Q[..., 0], Q[..., 1], Q[..., 2]
         z = Pf[..., 2]
@@ -176,9 +178,9 @@ class GeometricProposer(WallFinder, Segmenter, HypothesisBuilder):
         wall_mask = np.zeros_like(obj)
         if walls:
             Nu = grid.normals @ R.astype(np.float32)
+            wtol = cfg.wall_tol + 0.003 * z * z  # on-wall tolerance (m), the same for every wall
             for nrm, rho in walls:
                 off = X * nrm[0] + Y * nrm[1] - rho
-                wtol = cfg.wall_tol + 0.003 * z * z
                 ncos = Nu[..., 0] * nrm[0] + Nu[..., 1] * nrm[1]
                 on = (np.abs(off) < wtol) & (~grid.nvalid | (ncos > 0.8))
                 wall_mask |= valid & (on | ((off < -wtol) & cfg.remove_behind_walls))
