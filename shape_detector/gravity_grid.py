@@ -16,7 +16,7 @@ _NORMAL_K = (2, 0)  # central-difference half-baselines in cells: near, far (bey
 _SCRATCH = threading.local()  # per-thread reusable work arrays (make_grid, colour links)
 
 
-def _scratch(name: str, shape: tuple[int, ...], dtype: type = np.float32) -> np.ndarray:
+def work_array(name: str, shape: tuple[int, ...], dtype: type = np.float32) -> np.ndarray:
     """A reusable per-thread work array ``name`` (contents undefined). Full-resolution
     temporaries allocated afresh each frame are returned to the OS and page-faulted back
     in on the next one, which costs more than the cheap passes that fill them."""
@@ -73,17 +73,17 @@ def make_grid(depth: np.ndarray, K: np.ndarray, stride: int | None = 4, max_dept
     s = auto_stride((H, W)) if not stride else max(1, int(stride))
     h, w = H // s, W // s
     # work copy (float32) in a reused buffer; nothing returned refers to it
-    dc = _scratch("depth", (h * s, w * s))
+    dc = work_array("depth", (h * s, w * s))
     np.copyto(dc, depth[: h * s, : w * s], casting="unsafe")
     cv2.patchNaNs(dc, 0.0)
     cv2.threshold(dc, float(max_depth), 0.0, cv2.THRESH_TOZERO_INV, dst=dc)
     cv2.threshold(dc, 0.0, 0.0, cv2.THRESH_TOZERO, dst=dc)  # negatives / inf -> 0
-    okf = cv2.threshold(dc, 0.0, 1.0, cv2.THRESH_BINARY, dst=_scratch("valid", dc.shape))[1]
+    okf = cv2.threshold(dc, 0.0, 1.0, cv2.THRESH_BINARY, dst=work_array("valid", dc.shape))[1]
     if s > 1:
         area = cv2.INTER_AREA
         frac = cv2.resize(okf, (w, h), interpolation=area)
         msum = cv2.resize(dc, (w, h), interpolation=area)
-        alt = cv2.addWeighted(dc, 1.0, okf, -1e4, 1e4, dst=_scratch("alt", dc.shape))  # invalid -> 1e4
+        alt = cv2.addWeighted(dc, 1.0, okf, -1e4, 1e4, dst=work_array("alt", dc.shape))  # invalid -> 1e4
         dmin = _block_reduce(alt, s, np.minimum)
         dmax = _block_reduce(dc, s, np.maximum)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -114,7 +114,7 @@ def make_grid(depth: np.ndarray, K: np.ndarray, stride: int | None = 4, max_dept
     rnormals = np.zeros((h, w, 3), np.float32)
     rvalid = np.zeros((h, w), bool)
     if h >= 2 * _NORMAL_K[0] + 1 and w >= 2 * _NORMAL_K[0] + 1:
-        n1, g1 = _raw_normals(X, Y, Z, msm, _NORMAL_K[0], out=_scratch("n1", (h, w, 3)))
+        n1, g1 = _raw_normals(X, Y, Z, msm, _NORMAL_K[0], out=work_array("n1", (h, w, 3)))
         if _NORMAL_K[1] and h >= 7 and w >= 7:
             # far away the depth noise swamps short baselines: 3-block differences there
             n3_, g3 = _raw_normals(X, Y, Z, msm, _NORMAL_K[1])
@@ -124,14 +124,14 @@ def make_grid(depth: np.ndarray, K: np.ndarray, stride: int | None = 4, max_dept
         else:
             nraw, good = n1, g1
         # smooth (3x3 mean of unit normals); keep normals whose neighbourhood agrees
-        # (h, w, 3) temporaries in reused buffers, see _scratch
-        nb = cv2.blur(nraw, (3, 3), dst=_scratch("nb", (h, w, 3)), borderType=cv2.BORDER_CONSTANT)
+        # (h, w, 3) temporaries in reused buffers, see work_array
+        nb = cv2.blur(nraw, (3, 3), dst=work_array("nb", (h, w, 3)), borderType=cv2.BORDER_CONSTANT)
         gcount = cv2.blur(good.astype(np.float32), (3, 3), borderType=cv2.BORDER_CONSTANT)
-        ln = np.sqrt(cv2.transform(cv2.multiply(nb, nb, dst=_scratch("nb2", (h, w, 3))), np.ones((1, 3), np.float32)))
+        ln = np.sqrt(cv2.transform(cv2.multiply(nb, nb, dst=work_array("nb2", (h, w, 3))), np.ones((1, 3), np.float32)))
         keep = good & (ln > 0.85 * gcount) & (gcount > 0.5)
         keep[0, :] = keep[-1, :] = False
         keep[:, 0] = keep[:, -1] = False
-        unit = np.divide(nb, np.maximum(ln, 1e-12)[..., None], out=_scratch("unit", (h, w, 3)))
+        unit = np.divide(nb, np.maximum(ln, 1e-12)[..., None], out=work_array("unit", (h, w, 3)))
         np.multiply(unit, keep[..., None], out=normals)
         nvalid[:] = keep
         rnormals[:] = unit

@@ -12,7 +12,8 @@ The host (the node) provides: ``p`` (parameter values), ``detector``, ``stats``
 ``publish(objects, stamp_ns, frame_id, frame, up)`` (``frame``: the checked input frame, None
 when it was skipped; ``up``: gravity up in the camera frame or None), ``now_ns()`` (its clock),
 ``camera_info()`` (latest or None), ``info_event`` (set once one arrived),
-``build_detector()`` and ``topic(name)`` (resolved topic name).
+``frame_up(frame_set, stamp_ns, frame_id)`` (gravity up for a frame about to be detected, None:
+estimated), ``build_detector()`` and ``topic(name)`` (resolved topic name).
 """
 
 from __future__ import annotations
@@ -178,9 +179,7 @@ class FrameScheduler:
         pf = job.frame = self._frame(fs)
         if pf is None:
             return job
-        frame_up = getattr(self.host, "frame_up", None)
-        if frame_up is not None:
-            fs.up = frame_up(fs, job.stamp, job.frame_id)
+        fs.up = self.host.frame_up(fs, job.stamp, job.frame_id)
         det = self.host.detector
         td = time.perf_counter()
         try:

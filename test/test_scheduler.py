@@ -58,6 +58,9 @@ class Host:
     def publish(self, objects, stamp, frame_id, frame=None, up=None):
         self.published.append(stamp)
 
+    def frame_up(self, fs, stamp_ns, frame_id):
+        return fs.up
+
     def now_ns(self):
         return time.time_ns()
 

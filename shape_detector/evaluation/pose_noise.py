@@ -19,7 +19,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
+
+from ..geometry import rot_z
 
 
 @dataclass(frozen=True)
@@ -47,16 +50,6 @@ class PoseNoise:
         return not (self.drift or self.yaw_drift_deg or self.jitter or self.jitter_deg)
 
 
-def _rotation(axis_angle: np.ndarray) -> np.ndarray:
-    """(3,3) rotation of the rotation vector ``axis_angle`` (radians)."""
-    a = float(np.linalg.norm(axis_angle))
-    if a < 1e-12:
-        return np.eye(3)
-    k = np.asarray(axis_angle, dtype=np.float64) / a
-    Kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(a) * Kx + (1.0 - np.cos(a)) * Kx @ Kx
-
-
 def travelled(poses: Sequence[np.ndarray]) -> np.ndarray:
     """(N,) distance the camera centre has travelled up to each pose, metres."""
     if not poses:
@@ -79,11 +72,11 @@ def noisy_poses(poses: Sequence[np.ndarray], noise: PoseNoise, seed: int = 0) ->
     pivot = out[0][:3, 3].copy()
     for T, dist in zip(out, s):
         yaw = yaw_sign * np.radians(noise.yaw_drift_deg) * dist
-        Rz = _rotation(np.array([0.0, 0.0, yaw]))
+        Rz = rot_z(yaw)
         R, t = T[:3, :3].copy(), T[:3, 3].copy()
         R, t = Rz @ R, Rz @ (t - pivot) + pivot + noise.drift * dist * direction
         if noise.jitter_deg:
-            R = R @ _rotation(rng.normal(0.0, np.radians(noise.jitter_deg), 3))
+            R = R @ cv2.Rodrigues(rng.normal(0.0, np.radians(noise.jitter_deg), 3))[0]
         if noise.jitter:
             t = t + rng.normal(0.0, noise.jitter, 3)
         T[:3, :3], T[:3, 3] = R, t

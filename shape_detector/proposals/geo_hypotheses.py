@@ -47,13 +47,23 @@ def _sorted_unique(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         s = a[o]
     else:
         s = np.sort(a)
-    first = np.flatnonzero(np.r_[True, s[1:] != s[:-1]])
+    first = _group_starts(s)
     return s[first], np.diff(np.r_[first, s.size])
 
 
 def _group_starts(sorted_lab: np.ndarray) -> np.ndarray:
     """Start index of each run of equal values in the sorted labels ``sorted_lab`` (non-empty)."""
     return np.flatnonzero(np.r_[True, sorted_lab[1:] != sorted_lab[:-1]])
+
+
+def _groups(lab: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(order, starts, labels)`` of integer labels ``lab`` (non-empty): the stable order that
+    sorts them, where each label's run starts in that order, and the distinct labels
+    (ascending) -- for per-label ``reduceat`` over rows taken in ``order``."""
+    order = _stable_order(lab)
+    ls = lab[order]
+    starts = _group_starts(ls)
+    return order, starts, ls[starts]
 
 
 def _containment_pairs(cell: np.ndarray, sid: np.ndarray, S: int, contain_frac: float) -> tuple[np.ndarray, np.ndarray]:
@@ -152,10 +162,8 @@ class HypothesisBuilder:
             out = AT.copy()
             n = npts.astype(np.int64).copy()
             if len(Ii):
-                o = _stable_order(Ii)
-                Is, Js = Ii[o], Jj[o]
-                first = _group_starts(Is)
-                rows = Is[first]
+                o, first, rows = _groups(Ii)
+                Js = Jj[o]
                 out[rows] = np.minimum(out[rows], np.minimum.reduceat(np.take(AT, Js, axis=0), first, axis=0))
                 n[rows] += np.add.reduceat(npts[Js], first)
             return out * sign, n
@@ -163,10 +171,7 @@ class HypothesisBuilder:
         def union_labels(lab):
             """Union per label of ``lab`` (S,): (stats rows, counts) of the distinct labels."""
             L = int(lab.max()) + 1
-            o = _stable_order(lab)
-            ls = lab[o]
-            first = _group_starts(ls)
-            u = ls[first]
+            o, first, u = _groups(lab)
             out = np.minimum.reduceat(np.take(AT, o, axis=0), first, axis=0)
             n = np.bincount(lab, weights=npts, minlength=L)
             return out * sign, n[u]
@@ -186,27 +191,24 @@ class HypothesisBuilder:
         st, n = union_labels(segblob)
         parts.append((st, n, 0.6, "blob"))
         if cfg.split_length > 0:
-            parts.extend(self._equal_splits(pd, sid, S, npts, xmin, xmax, ymin, ymax, V_seg=V, seg_starts=starts))
+            parts.extend(self._equal_splits(V, starts, npts, xmin, xmax, ymin, ymax))
         return self._finalize(grid, parts)
 
-    def _equal_splits(self, pd: dict, sid, S, npts, xmin, xmax, ymin, ymax, V_seg: np.ndarray | None = None,
-                      seg_starts: np.ndarray | None = None) -> list:
+    def _equal_splits(self, V_seg: np.ndarray, seg_starts: np.ndarray, npts, xmin, xmax, ymin, ymax) -> list:
         """Long segments (a row of equal dressers / night stands, fronts flush, same
         material) cut into 2 or 3 equal parts along their footprint's main axis; parts and
-        neighbouring pairs become hypotheses. ``V_seg`` / ``seg_starts``: ``pd["V"]`` stably sorted
-        by segment and each segment's first row there (optional; saves a mask per segment)."""
+        neighbouring pairs become hypotheses. ``V_seg``: the points' (height, col, row, x, y)
+        stably sorted by segment, ``seg_starts``: each segment's first row there."""
         cfg = self.config
         diag = np.hypot(xmax - xmin, ymax - ymin)
         cand = np.flatnonzero((diag > cfg.split_length) & (npts >= 30))
         if cand.size == 0:
             return []
         cand = cand[np.argsort(-npts[cand])][: cfg.split_max_segments]
-        V = pd["V"]
         out = []
         sign = _SIGN
         for i in cand:
-            # a stable sort keeps the point order, so the slice equals V[sid == i]
-            Vi = V[sid == i] if V_seg is None or seg_starts is None else V_seg[seg_starts[i] : seg_starts[i] + npts[i]]
+            Vi = V_seg[seg_starts[i] : seg_starts[i] + npts[i]]  # in point order: the sort is stable
             xy = Vi[:, 3:5] - Vi[:, 3:5].mean(0)
             cxx, cxy, cyy = (xy[:, 0] ** 2).mean(), (xy[:, 0] * xy[:, 1]).mean(), (xy[:, 1] ** 2).mean()
             a = 0.5 * np.arctan2(2 * cxy, cxx - cyy)
@@ -317,22 +319,15 @@ class HypothesisBuilder:
 # ---------------------------------------------------------------------------------------
 
 
-def _label_stats(V: np.ndarray, lab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per distinct label of points: stats rows (umin vmin umax vmax xmin ymin xmax ymax
-    hmax hmin) from ``V`` (n, 5) = (height, col, row, x, y), and point counts."""
-    st, n, _ = _label_groups(V, lab)
-    return st, n
-
-
 def _label_groups(V: np.ndarray, lab: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_label_stats` plus the distinct labels (ascending) the rows belong to."""
-    order = _stable_order(lab)
-    ls = lab[order]
-    starts = _group_starts(ls)
+    """Per distinct label of points: stats rows (umin vmin umax vmax xmin ymin xmax ymax
+    hmax hmin) from ``V`` (n, 5) = (height, col, row, x, y), point counts, and the distinct
+    labels (ascending)."""
+    order, starts, labels = _groups(lab)
     Vs = np.take(V, order, axis=0)
-    n = np.diff(np.r_[starts, len(ls)])
+    n = np.diff(np.r_[starts, len(lab)])
     st = _stats_rows(np.minimum.reduceat(Vs, starts, axis=0), np.maximum.reduceat(Vs, starts, axis=0))
-    return st, n, ls[starts]
+    return st, n, labels
 
 
 def _components(n: int, ci: np.ndarray, cj: np.ndarray) -> np.ndarray:

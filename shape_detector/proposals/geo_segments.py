@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from ..gravity import DepthGrid
-from ..gravity_grid import _scratch
+from ..gravity_grid import work_array
 
 if TYPE_CHECKING:
     from .geometric import GeometricConfig, ProposalDebug
@@ -98,7 +98,7 @@ class Segmenter:
             while small.shape[0] > h:
                 hw = (small.shape[0] // 2, small.shape[1] // 2)
                 # into reused buffers: a fresh half-resolution image per frame is page-faulted in
-                buf = _scratch(f"rgb_half{level}", (*hw, small.shape[2]), np.uint8)
+                buf = work_array(f"rgb_half{level}", (*hw, small.shape[2]), np.uint8)
                 small = cv2.resize(small, (hw[1], hw[0]), dst=buf, interpolation=cv2.INTER_LINEAR)
                 level += 1
         else:

@@ -243,11 +243,9 @@ def floor_from_estimates(estimates: Sequence[float], tol: float = 0.04, min_fram
     if len(e) == 0:
         return None
     need = max(int(min_frames), int(np.ceil(min_share * len(e))))
-    for x in e:
-        near = e[np.abs(e - x) <= tol]
-        if len(near) >= need:
-            return float(np.median(near))
-    return float(np.median(e))
+    near = np.abs(e[:, None] - e[None, :]) <= tol  # (a few hundred estimates at most)
+    supported = np.flatnonzero(near.sum(1) >= need)
+    return float(np.median(e[near[supported[0]]] if supported.size else e))
 
 
 def part_blocks(center: np.ndarray, size: np.ndarray, rotation: np.ndarray, floor_z: float,
