@@ -10,7 +10,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(include=["shape_detector", "shape_detector.*", "msg_conversion", "msg_conversion.*"]),
-    package_data={PACKAGE: ["weights/*.pt", "weights/*.json", "config/*.xml", "training/recipes/*.json"]},
+    package_data={PACKAGE: ["weights/*.pt", "weights/*.onnx", "weights/*.json", "config/*.xml", "training/recipes/*.json"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),

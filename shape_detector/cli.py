@@ -20,6 +20,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "train": ("shape_detector.training.cli", "train the frustum network on generated data"),
     "train-classifier": ("shape_detector.training.classifier_cli",
                          "train the proposal classifier on the network's built-in-proposal candidates"),
+    "train-proposer": ("shape_detector.training.train_proposer",
+                       "train the learned 2D proposer on generated frames (writes an ONNX file)"),
     "weights-info": ("shape_detector.training.weights_info", "print a weights file's format, provenance and metrics"),
     "evaluate": ("shape_detector.evaluation.cli", "evaluate weights on a held-out generated set"),
     "bench": ("shape_detector.bench", "benchmarks that print numbers (synth, network, proposals, node)"),

@@ -172,26 +172,30 @@ def _to_object(box: tuple[float, float, float, float], fr: Frustum, pred: Any) -
     )
 
 
-def reclassify(classifier: Any, frame: PreparedFrame, preds: list) -> list:
-    """First-pass predictions of a frame's built-in proposals with the class, class
-    probabilities and score the proposal classifier gives them (class = the most probable
-    of the ten, score = its probability); frustums without valid points keep score 0."""
+def reclassify(classifier: Any, frame: PreparedFrame, preds: list, which: Sequence[int] | None = None) -> list:
+    """First-pass predictions of a frame's frustums with the class, class probabilities and
+    score the proposal classifier gives those listed in ``which`` (indices; None = all):
+    class = the most probable of the ten, score = its probability; frustums without valid
+    points get score 0. The others are returned unchanged."""
     from dataclasses import replace
 
     from .classes import CLASSES
     from .model.classifier_inputs import frame_inputs
 
+    idx = list(range(len(preds))) if which is None else list(which)
+    if not idx:
+        return list(preds)
     h, w = frame.depth.shape
     pts, glob = frame_inputs(
-        frame.frustums, preds, [b for b, _, _ in frame.boxes], [s for _, _, s in frame.boxes], (w, h),
-        frame.floor_height, classifier.config,
+        [frame.frustums[i] for i in idx], [preds[i] for i in idx], [frame.boxes[i][0] for i in idx],
+        [frame.boxes[i][2] for i in idx], (w, h), frame.floor_height, classifier.config,
     )
     probs = classifier.probabilities(pts, glob)
-    out = []
-    for p, pr in zip(preds, probs):
+    out = list(preds)
+    for i, pr in zip(idx, probs):
         k = int(np.argmax(pr[: len(CLASSES)]))
-        score = float(pr[k]) if p.num_points_valid > 0 else 0.0
-        out.append(replace(p, class_name=CLASSES[k], class_probs=pr, score=score))
+        score = float(pr[k]) if preds[i].num_points_valid > 0 else 0.0
+        out[i] = replace(preds[i], class_name=CLASSES[k], class_probs=pr, score=score)
     return out
 
 
@@ -389,8 +393,10 @@ class ShapeDetector:
         t_net = time.perf_counter()
         preds = list(frame.first or [])
         agnostic = [i for i, (_, c, _) in enumerate(frame.boxes) if c is None]
-        if self.classifier is not None and not frame.given_boxes and agnostic:
-            preds = reclassify(self.classifier, frame, preds)
+        if self.classifier is not None and agnostic:
+            # given boxes without a class are classified as the built-in proposals are: the
+            # classifier sees context the frustum network's class head does not
+            preds = reclassify(self.classifier, frame, preds, agnostic)
         t_cls = time.perf_counter()
         if cfg.refine and agnostic:
             todo = self._suppress_duplicates(frame, preds, agnostic) if cfg.refine_nms else agnostic

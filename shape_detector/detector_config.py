@@ -18,7 +18,7 @@ from typing import Any
 
 from .settings import Spec, check, coerce, setting, specs
 
-PROPOSAL_SOURCES = ("geometric", "external", "onnx")
+PROPOSAL_SOURCES = ("geometric", "learned", "external", "onnx")
 PRECISIONS = ("auto", "fp32", "bf16", "int8")
 BACKENDS = ("auto", "onnxruntime", "torch")
 
@@ -31,12 +31,15 @@ class DetectorConfig:
     device: str = setting("cpu", "compute device: cpu, cuda, cuda:N or auto", node="rebuild")
     backend: str = setting("auto", "inference runtime: auto (ONNX Runtime when installed, else PyTorch), "
                            "onnxruntime or torch", choices=BACKENDS, node="rebuild")
-    classifier: str = setting("", "proposal classifier that re-decides class and score of built-in proposals; "
-                              "empty = the packaged one, 'none' = off, or a file", node="rebuild")
-    proposal_source: str = setting("geometric", "2D proposals: geometric (built in, from the depth), external "
-                                   "(boxes given with each frame / the detections2d topic) or onnx (a YOLO ONNX "
-                                   "file, proposal_model)", choices=PROPOSAL_SOURCES)
-    proposal_model: str = setting("", "YOLOv5/v8 ONNX file for proposal_source onnx (COCO classes mapped to ours)")
+    classifier: str = setting("", "proposal classifier that decides class and score of built-in proposals and of "
+                              "given boxes without a class; empty = the packaged one, 'none' = off, or a file",
+                              node="rebuild")
+    proposal_source: str = setting("geometric", "2D proposals: geometric (built in, from the depth), learned "
+                                   "(built in, a small network on colour and depth), external (boxes given with "
+                                   "each frame / the detections2d topic) or onnx (a YOLO ONNX file, proposal_model)",
+                                   choices=PROPOSAL_SOURCES)
+    proposal_model: str = setting("", "YOLOv5/v8 ONNX file for proposal_source onnx (COCO classes mapped to ours); "
+                                  "for learned, another network from train-proposer (empty = the packaged one)")
     score_threshold: float = setting(0.3, "minimum score of a published object", range=(0.0, 1.0), node="dynamic")
     max_objects: int = setting(10, "built-in proposals (frustums) per frame, best first: the speed knob",
                                range=(1, 1000), node="dynamic")

@@ -1,6 +1,8 @@
 """The one registry of 2D proposal sources, used by the detector, the node and replay.
 
-``geometric``: built in, class-agnostic, from the depth alone; ``onnx``: a YOLOv5/v8 ONNX
+``geometric``: built in, class-agnostic, from the depth alone; ``learned``: built in,
+class-agnostic, a small network on colour and depth (``proposal_model`` or the packaged
+one, :mod:`shape_detector.proposals.learned`); ``onnx``: a YOLOv5/v8 ONNX
 file (``proposal_model``) run on the colour image; ``external``: boxes come with each
 frame (``detect(boxes2d=...)``, the node's detections2d topic, a bag's detections topic),
 so the detector builds no proposer.
@@ -34,7 +36,14 @@ def _onnx(config: Any) -> Any:
     return get_proposer("onnx_yolo", model_path=config.proposal_model)
 
 
+def _learned(config: Any) -> Any:
+    from .proposals import get_proposer
+
+    return get_proposer("learned", model_path=config.proposal_model or None)
+
+
 register("geometric", _geometric)
+register("learned", _learned)
 register("onnx", _onnx)
 register("external", lambda config: None)
 

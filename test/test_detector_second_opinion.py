@@ -46,9 +46,31 @@ def test_classifier_decides_class_and_score_of_builtin_proposals(scene):
     kept = [o for o in objects if o.score > 0.1]  # Soft-NMS copies carry a tenth of the score
     assert kept and all(o.class_name == "bed" and o.score == pytest.approx(0.6) for o in kept)
     assert all(o.class_scores[CLASS_TO_ID["bed"]] == pytest.approx(0.6) for o in kept)
-    # given boxes keep the network's decision: the classifier is for built-in proposals only
-    det.detect(scene.rgb, scene.depth, scene.K, boxes2d=[(*scene.objects[0].box2d, None)])
-    assert det.classifier.calls == 1
+
+
+def test_classifier_decides_given_boxes_without_a_class_only(scene):
+    det = ShapeDetector(score_threshold=0.0, classifier=False, refine=False)
+    det.classifier = FixedClassifier()
+    dresser, chair = scene.objects
+    objects = det.detect(scene.rgb, scene.depth, scene.K, boxes2d=[(*dresser.box2d, None), (*chair.box2d, "chair")])
+    assert det.classifier.calls == 1 and len(objects) == 2
+    by_box = {tuple(np.round(o.box2d, 3)): o for o in objects}
+    agnostic, given = by_box[tuple(np.round(dresser.box2d, 3))], by_box[tuple(np.round(chair.box2d, 3))]
+    assert agnostic.class_name == "bed" and agnostic.score == pytest.approx(0.6)
+    assert given.class_name == "chair"  # a given class is kept, never re-decided
+    det.detect(scene.rgb, scene.depth, scene.K, boxes2d=[(*chair.box2d, "chair")])
+    assert det.classifier.calls == 1  # no class-less box: the classifier is not run
+
+
+def test_reclassify_changes_only_the_listed_frustums(scene):
+    from shape_detector.detector import reclassify
+
+    det = ShapeDetector(score_threshold=0.0, classifier=False, refine=False)
+    prep = det.prepare(scene.rgb, scene.depth, scene.K)
+    first = det.predictor.predict(prep.frustums, [None] * len(prep.frustums))
+    out = reclassify(FixedClassifier(), prep, first, [1])
+    assert out[0] is first[0] and out[1].class_name == "bed"
+    assert reclassify(FixedClassifier(), prep, first, []) == first
 
 
 def test_second_pass_runs_the_predicted_class_given(scene):

@@ -82,6 +82,27 @@ def test_runner_gt_boxes():
     assert res["timing"]["frames"] == 2 and len(res["timing"]["per_frame_s"]) == 2
 
 
+def test_runner_gt_boxes_without_class_pair_by_the_box():
+    frames = [make_frame(0)]
+
+    def detect(frame, boxes2d):
+        assert all(len(b) == 4 for b in boxes2d)  # the class is the detector's to name
+        out = []
+        for x1, y1, x2, y2 in boxes2d:
+            g = next(o for o in frame.objects if tuple(o.box2d) == (x1, y1, x2, y2))
+            out.append(Object3D("sofa" if g.class_name == "table" else g.class_name, 0.9, g.center, g.size,
+                                g.rotation, box2d=(x1, y1, x2, y2)))
+        return out
+
+    res = evaluate(detect, frames, use_gt_boxes=True, min_visible=0.1, gt_class=False, class_hypotheses=2,
+                   surface_samples=100)
+    assert res["settings"]["mode"] == "gt_boxes_without_class"
+    assert res["detection"]["ap"]["0.25"]["chair"] == pytest.approx(1.0)
+    assert res["detection"]["ap"]["0.25"]["table"] == 0.0  # named a sofa: a miss for the AP ...
+    assert sorted(p["pairing"] for p in res["pairs"]) == ["gt_box", "gt_box"]  # ... but paired by its box
+    assert "detection_class_hypotheses" in res
+
+
 def test_runner_detector_boxes_pairs_by_iou():
     frames = [make_frame(0)]
 

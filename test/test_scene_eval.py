@@ -126,3 +126,36 @@ def test_collect_feeds_the_map_the_noisy_poses_and_the_detector_their_gravity():
     est = Recording()
     collect([3], 2, 96, 72, detector=est, up="estimate")
     assert est.ups == [None, None]
+
+
+@pytest.mark.parametrize("gt_2d", ["boxes", "classes"])
+def test_collect_with_gt_2d_gives_the_detector_the_true_2d_boxes(gt_2d):
+    from shape_detector.evaluation.runner import gt_boxes2d
+    from shape_detector.evaluation.scene_eval import collect
+    from shape_detector.synth.generate import SynthConfig
+    from shape_detector.synth.walkthrough import walkthrough
+
+    class Recording:
+        def __init__(self):
+            self.boxes = []
+
+        def detect(self, rgb, depth, K, boxes2d=None, up=None):
+            self.boxes.append(boxes2d)
+            return []
+
+    det = Recording()
+    collect([3], 4, 96, 72, detector=det, gt_2d=gt_2d)
+    frames = walkthrough(3, 4, config=SynthConfig(width=96, height=72)).frames
+    want = [gt_boxes2d(f)[0] for f in frames]
+    assert any(want) and len(det.boxes) == sum(1 for w in want if w)  # frames with nothing to give are skipped
+    got = iter(det.boxes)
+    for w in (w for w in want if w):
+        assert next(got) == (w if gt_2d == "classes" else [b[:4] for b in w])
+
+
+def test_given_boxes2d_refuses_an_unknown_choice():
+    from shape_detector.evaluation.runner import given_boxes2d
+
+    with pytest.raises(ValueError, match="gt_2d"):
+        given_boxes2d(None, "masks")
+    assert given_boxes2d(None, None) is None

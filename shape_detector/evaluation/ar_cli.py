@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..config_cli import add_detector_flags, config_from_args
+from .runner import GT_2D_CHOICES
 
 #: metric -> acceptance threshold (issue #27)
 THRESHOLDS = {"ray_within_5cm": 0.90, "collide_precision": 0.90, "collide_recall": 0.90, "plan_found": 0.95,
@@ -44,6 +45,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--radius", type=float, default=0.1, help="collision sphere radius (m)")
     p.add_argument("--agent-radius", type=float, default=0.2, help="planning agent radius (m)")
     p.add_argument("--json", default=None, help="also write the per-sequence and mean metrics here")
+    p.add_argument("--gt-2d", choices=GT_2D_CHOICES, default=None,
+                   help="give the detector the frames' true 2D boxes instead of its proposals, without (boxes) "
+                   "or with their classes (classes): the upper bound an ideal 2D stage would give")
     p.add_argument("--processes", type=int, default=1, metavar="N",
                    help="walk-throughs in N worker processes, each with its own detector (default 1: here; "
                    "with more, --workers 1 keeps one core per process)")
@@ -97,13 +101,15 @@ def main(args: argparse.Namespace) -> int:
         Path(args.save_maps).mkdir(parents=True, exist_ok=True)
     kw = dict(frames=args.frames, width=args.width, height=args.height, use_gt_map=args.gt_map, n_rays=args.rays,
               n_points=args.points, n_pairs=args.pairs, radius=args.radius, agent_radius=args.agent_radius,
-              save_dir=args.save_maps if args.save_maps and not args.gt_map else None)
+              save_dir=args.save_maps if args.save_maps and not args.gt_map else None,
+              **({"gt_2d": args.gt_2d} if args.gt_2d and not args.gt_map else {}))
     t0 = time.perf_counter()
     for seed, r in zip(args.seeds, map_seeds(evaluate_seed, args.seeds, config, args.processes, detector, **kw)):
         rows.append(r)
         print(f"seed {seed} ({time.perf_counter() - t0:.0f} s): " + ", ".join(f"{k}={v:.3f}" for k, v in r.items()))
     mean = {k: _nanmean([r[k] for r in rows]) for k in rows[0]}
-    print(f"map: {'true scene (--gt-map)' if args.gt_map else 'detector + SceneMap'}, {len(rows)} walk-throughs")
+    given = f", the true 2D boxes{' and classes' if args.gt_2d == 'classes' else ''} given (--gt-2d)" if args.gt_2d else ""
+    print(f"map: {'true scene (--gt-map)' if args.gt_map else 'detector + SceneMap' + given}, {len(rows)} walk-throughs")
     for k, thr in THRESHOLDS.items():
         print(f"  {k:>30}: {mean[k]:.3f}  (>= {thr:.2f}: {'pass' if mean[k] >= thr else 'FAIL'})")
     for k in ("ray_floor_within_5cm", "ray_within_5cm_primitives", "ray_median_err_cm", "plan_min_clearance_cm",

@@ -255,11 +255,13 @@ def gt_map(truth: Truth) -> ArScene:
 
 def evaluate_walkthrough(seed: int, frames: int = 40, width: int = 640, height: int = 480, detector: Any = None,
                          use_gt_map: bool = False, n_rays: int = 2000, n_points: int = 2000, n_pairs: int = 40,
-                         radius: float = 0.1, agent_radius: float = 0.2, save_map: str | None = None) -> dict[str, float]:
+                         radius: float = 0.1, agent_radius: float = 0.2, save_map: str | None = None,
+                         gt_2d: str | None = None) -> dict[str, float]:
     """Render walk-through ``seed``, build its map (the detector on every frame fed to a
     ``SceneMap`` with the true poses; or the true scene with ``use_gt_map``) and score the
     queries on it. ``detector``: a ``ShapeDetector`` (the default one when None);
-    ``save_map``: write the detector's map as scene JSON there."""
+    ``save_map``: write the detector's map as scene JSON there; ``gt_2d``: the frames' true 2D
+    boxes instead of the detector's proposals (:func:`~.runner.given_boxes2d`)."""
     from ..synth.generate import SynthConfig
     from ..synth.walkthrough import walkthrough
 
@@ -272,6 +274,7 @@ def evaluate_walkthrough(seed: int, frames: int = 40, width: int = 640, height: 
         from ..ar.scene_data import load_scene
         from ..poses import camera_up
         from ..scene import SceneMap
+        from .runner import given_boxes2d
 
         if detector is None:
             from ..detector import ShapeDetector
@@ -279,7 +282,11 @@ def evaluate_walkthrough(seed: int, frames: int = 40, width: int = 640, height: 
             detector = ShapeDetector()
         smap = SceneMap()
         for f, T in zip(wt.frames, wt.poses):
-            objs = detector.detect(f.rgb, f.depth, f.K, up=camera_up(T))
+            boxes = given_boxes2d(f, gt_2d)
+            if boxes is None:
+                objs = detector.detect(f.rgb, f.depth, f.K, up=camera_up(T))
+            else:
+                objs = detector.detect(f.rgb, f.depth, f.K, boxes2d=boxes, up=camera_up(T)) if boxes else []
             smap.update(objs, T, f.depth, f.K, int(f.stamp_ns))
         if save_map:
             smap.save_json(save_map)

@@ -25,6 +25,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=int, default=100, help="number of frames to evaluate (default 100)")
     p.add_argument("--out", default="eval_out", help="output directory for the report (default eval_out)")
     p.add_argument("--no-gt-boxes", action="store_true", help="use the detector's own 2D proposals")
+    p.add_argument("--no-gt-class", action="store_true",
+                   help="give the GT 2D boxes without their class: the detector classifies them (as boxes from "
+                        "a class-agnostic 2D detector)")
     p.add_argument("--seed", type=int, default=0, help="first generator seed (on-the-fly frames) and sampling seed")
     p.add_argument("--min-visible", type=float, default=0.0,
                    help="GT with a smaller visible fraction is ignored (default 0)")
@@ -76,7 +79,10 @@ def main(args: argparse.Namespace) -> int:
             print(f"  frame {i + 1}: {dt * 1000:.0f} ms", file=sys.stderr)
 
     use_gt = not args.no_gt_boxes
-    if use_gt and args.class_hypotheses > 1:
+    if args.no_gt_class and not use_gt:
+        print("shape-detector evaluate: --no-gt-class applies to GT boxes only (not with --no-gt-boxes)", file=sys.stderr)
+        return 2
+    if use_gt and args.class_hypotheses > 1 and not args.no_gt_class:
         print("shape-detector evaluate: --class-hypotheses applies to detected boxes (--no-gt-boxes) only; "
               "with GT boxes the class is given", file=sys.stderr)
     results = evaluate(
@@ -88,6 +94,7 @@ def main(args: argparse.Namespace) -> int:
         seed=args.seed,
         progress=progress,
         class_hypotheses=args.class_hypotheses,
+        gt_class=not args.no_gt_class,
     )
     results["settings"].update(
         {

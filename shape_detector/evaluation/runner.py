@@ -55,6 +55,23 @@ def gt_boxes2d(frame: Frame, classes: Sequence[str] = CLASSES) -> tuple[list[tup
     return boxes, src
 
 
+#: ``--gt-2d`` of the walk-through evaluations: the true 2D boxes instead of the proposals
+GT_2D_CHOICES = ("boxes", "classes")
+
+
+def given_boxes2d(frame: Frame, gt_2d: str | None) -> list[tuple] | None:
+    """The 2D boxes a walk-through evaluation gives the detector for ``frame``: None (its own
+    proposals) without ``gt_2d``; the frame's GT boxes (:func:`gt_boxes2d`) with their class
+    for ``"classes"``, without it for ``"boxes"``. An upper bound for analysis: what an ideal
+    2D detector (class-agnostic, or with classes) would give the rest of the pipeline."""
+    if gt_2d is None:
+        return None
+    if gt_2d not in GT_2D_CHOICES:
+        raise ValueError(f"gt_2d must be one of {GT_2D_CHOICES} or None, got {gt_2d!r}")
+    boxes, _ = gt_boxes2d(frame)
+    return boxes if gt_2d == "classes" else [b[:4] for b in boxes]
+
+
 def _stats(values: Sequence[float]) -> dict[str, float]:
     v = np.asarray([x for x in values if x is not None and np.isfinite(x)], dtype=np.float64)
     if v.size == 0:
@@ -119,8 +136,8 @@ def _given_box_owner(dets: list[Any], boxes: list, src: list[int]) -> dict[int, 
     free = list(range(len(boxes)))
     for j, d in enumerate(dets):
         db = np.asarray(getattr(d, "box2d", (0, 0, 0, 0))[:4], dtype=np.float64)
-        for k in free:
-            if boxes[k][4] == d.class_name and np.allclose(db, boxes[k][:4], atol=1e-6):
+        for k in free:  # by the box alone: without the GT class the detector may name another
+            if np.allclose(db, boxes[k][:4], atol=1e-6):
                 prov[j] = src[k]
                 free.remove(k)
                 break
@@ -128,15 +145,18 @@ def _given_box_owner(dets: list[Any], boxes: list, src: list[int]) -> dict[int, 
 
 
 def _run_frames(detect_fn: DetectFn, frames: Iterable[Frame], use_gt_boxes: bool, classes: list[str],
-                max_frames: int | None, progress: Callable[[int, float], None] | None) -> _Collected:
-    """Run ``detect_fn`` on every frame, timing it, and keep what the metrics need."""
+                max_frames: int | None, progress: Callable[[int, float], None] | None,
+                gt_class: bool = True) -> _Collected:
+    """Run ``detect_fn`` on every frame, timing it, and keep what the metrics need; with
+    ``gt_class`` false the GT boxes go without their class."""
     c = _Collected()
     for i, frame in enumerate(frames):
         if max_frames is not None and i >= max_frames:
             break
         boxes, src = gt_boxes2d(frame, classes) if use_gt_boxes else (None, [])
+        given = boxes if gt_class or boxes is None else [b[:4] for b in boxes]
         t0 = time.perf_counter()
-        dets = list(detect_fn(frame, boxes))
+        dets = list(detect_fn(frame, given))
         dt = time.perf_counter() - t0
         c.times.append(dt)
         c.provenance.append(_given_box_owner(dets, boxes, src) if boxes else {})
@@ -261,11 +281,13 @@ def evaluate(
     progress: Callable[[int, float], None] | None = None,
     keep_pairs: bool = True,
     class_hypotheses: int = 1,
+    gt_class: bool = True,
 ) -> dict[str, Any]:
     """Evaluate ``detect_fn`` on ``frames`` (each with GT ``objects``); JSON-able result.
 
     ``detect_fn(frame, boxes2d)`` gets the GT 2D boxes (``(x1, y1, x2, y2, class)``, see
-    :func:`gt_boxes2d`) when ``use_gt_boxes`` is true, else None, and returns
+    :func:`gt_boxes2d`; with ``gt_class`` false ``(x1, y1, x2, y2)``: the detector names the
+    class) when ``use_gt_boxes`` is true, else None, and returns
     ``Object3D``-like detections. ``surface_samples`` points per set for the surface
     distance, ``shape_resolution`` voxels per axis for the shape IoU, ``seed`` for the
     surface sampling. ``progress(i, seconds)`` is called after each frame.
@@ -277,10 +299,10 @@ def evaluate(
     """
     classes = list(classes)
     thresholds = [float(t) for t in iou_thresholds]
-    c = _run_frames(detect_fn, frames, use_gt_boxes, classes, max_frames, progress)
+    c = _run_frames(detect_fn, frames, use_gt_boxes, classes, max_frames, progress, gt_class)
     detection = evaluate_detections(c.dets, c.gts, thresholds, classes, min_visible=min_visible, ups_per_frame=c.ups)
     hypotheses = None
-    if class_hypotheses > 1 and not use_gt_boxes:
+    if class_hypotheses > 1 and not (use_gt_boxes and gt_class):
         h = evaluate_detections([expand_class_hypotheses(d, class_hypotheses, classes) for d in c.dets],
                                 c.gts, thresholds, classes, min_visible=min_visible, ups_per_frame=c.ups)
         hypotheses = {"k": int(class_hypotheses), "ap": h["ap"], "mAP": h["mAP"], "num_det": h["num_det"]}
@@ -297,7 +319,7 @@ def evaluate(
     )
     results = {
         "settings": {
-            "mode": "gt_boxes" if use_gt_boxes else "detector_boxes",
+            "mode": ("gt_boxes" if gt_class else "gt_boxes_without_class") if use_gt_boxes else "detector_boxes",
             "min_visible": float(min_visible),
             "iou_thresholds": thresholds,
             "shape_resolution": int(shape_resolution),

@@ -14,6 +14,7 @@ import sys
 from typing import Any
 
 from ..config_cli import add_detector_flags, config_from_args
+from .runner import GT_2D_CHOICES
 
 #: metric key, label, target text, format
 ROWS = (
@@ -47,6 +48,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pose-noise", default=None, metavar="D,Y,J,JD",
                    help="poses as odometry reports them: drift D m per m travelled, heading drift Y deg per m, "
                    "per-frame jitter J m and JD deg (e.g. 0.01,0.5,0.005,0.2); default: the true poses")
+    p.add_argument("--gt-2d", choices=GT_2D_CHOICES, default=None,
+                   help="give the detector the frames' true 2D boxes instead of its proposals, without (boxes) "
+                   "or with their classes (classes): the upper bound an ideal 2D stage would give")
     p.add_argument("--processes", type=int, default=1, metavar="N",
                    help="walk-throughs in N worker processes, each with its own detector (default 1: here; "
                    "with more, --workers 1 keeps one core per process)")
@@ -72,7 +76,9 @@ def format_table(res: dict[str, Any], args: argparse.Namespace) -> str:
              f"(seeds {seeds}), {res['objects']} objects seen in >= {args.min_frames} frames, "
              f"{res['tracks']} published tracks; gravity {args.up}, "
              + (f"poses with noise {args.pose_noise} (drift m/m, deg/m, jitter m, deg)" if args.pose_noise
-                else "true poses"),
+                else "true poses")
+             + (f"; the true 2D boxes{' and classes' if args.gt_2d == 'classes' else ''} given (--gt-2d)"
+                if getattr(args, "gt_2d", None) else ""),
              f"{'metric':30s} {'map':>9s} {'target':>9s} {'stacked':>9s}"]
     flat = {**{f"mAP@{k}": v for k, v in res["map_mAP"].items()}, **res}
     stacked = {f"mAP@{k}": v for k, v in res["stack_mAP"].items()}
@@ -111,7 +117,7 @@ def main(args: argparse.Namespace) -> int:
     seeds = list(range(args.seed, args.seed + args.sequences))
     data = collect(seeds, args.frames, args.width, args.height, progress=progress, up=args.up,
                    detector=detector if args.processes == 1 else None,
-                   pose_noise=noise, config=det_config, processes=args.processes)
+                   pose_noise=noise, config=det_config, processes=args.processes, gt_2d=args.gt_2d)
     res = score_sequences(data, config, min_frames=args.min_frames)
     if args.json:
         print(json.dumps(res, indent=2, sort_keys=True))

@@ -66,9 +66,10 @@ class SequenceData:
 
 def collect(seeds: Sequence[int], frames: int, width: int = 640, height: int = 480,
             detector: Any = None, progress: Callable[[str], None] | None = None,
-            up: str = "pose", pose_noise: Any = None, config: Any = None, processes: int = 1) -> list[SequenceData]:
+            up: str = "pose", pose_noise: Any = None, config: Any = None, processes: int = 1,
+            gt_2d: str | None = None) -> list[SequenceData]:
     """Render each walk-through and run the detector on it (:func:`collect_one`), in seed
-    order; ``up``, ``pose_noise``: as there. The detector: ``detector``, else one built from
+    order; ``up``, ``pose_noise``, ``gt_2d``: as there. The detector: ``detector``, else one built from
     ``config`` (a ``DetectorConfig``; None: the defaults); with ``processes`` > 1 and no
     ``detector``, that many worker processes each build their own (:func:`~.parallel.map_seeds`)."""
     from .parallel import map_seeds
@@ -79,7 +80,7 @@ def collect(seeds: Sequence[int], frames: int, width: int = 640, height: int = 4
         from ..detector_config import preset
 
         config = preset("realtime")
-    kw = dict(frames=frames, width=width, height=height, up=up, pose_noise=pose_noise)
+    kw = dict(frames=frames, width=width, height=height, up=up, pose_noise=pose_noise, gt_2d=gt_2d)
     out = []
     for d in map_seeds(collect_one, seeds, config, 1 if detector is not None else processes, detector, **kw):
         out.append(d)
@@ -90,16 +91,18 @@ def collect(seeds: Sequence[int], frames: int, width: int = 640, height: int = 4
 
 
 def collect_one(seed: int, frames: int, width: int = 640, height: int = 480, detector: Any = None,
-                up: str = "pose", pose_noise: Any = None) -> SequenceData:
+                up: str = "pose", pose_noise: Any = None, gt_2d: str | None = None) -> SequenceData:
     """Render walk-through ``seed`` and run ``detector`` on each frame. ``up``: the gravity
     the detector gets, ``pose`` (the reported pose's z axis, as the node's ``up_source:
     auto`` gives it) or ``estimate`` (the detector estimates it per frame). ``pose_noise``:
     a :class:`~.pose_noise.PoseNoise` applied to the poses the map (and the detector's
-    gravity) gets, seeded by the sequence; None: the true poses."""
+    gravity) gets, seeded by the sequence; None: the true poses. ``gt_2d``: the frames' true
+    2D boxes instead of the detector's proposals (:func:`~.runner.given_boxes2d`)."""
     from ..synth.generate import SynthConfig
     from ..synth.walkthrough import walkthrough
     from ..poses import camera_up
     from .pose_noise import PoseNoise, noisy_poses
+    from .runner import given_boxes2d
 
     wt = walkthrough(int(seed), frames, config=SynthConfig(width=width, height=height))
     poses = noisy_poses(wt.poses, pose_noise or PoseNoise(), seed=int(seed))
@@ -114,7 +117,11 @@ def collect_one(seed: int, frames: int, width: int = 640, height: int = 480, det
     for f, T in zip(wt.frames, poses):
         t0 = time.perf_counter()
         g = camera_up(T) if up == "pose" else None
-        dets.append(detector.detect(f.rgb, f.depth, f.K, up=g))
+        boxes = given_boxes2d(f, gt_2d)
+        if boxes is None:
+            dets.append(detector.detect(f.rgb, f.depth, f.K, up=g))
+        else:  # nothing in view: no call, as a 2D detector that finds nothing
+            dets.append(detector.detect(f.rgb, f.depth, f.K, boxes2d=boxes, up=g) if boxes else [])
         ms.append(1000.0 * (time.perf_counter() - t0))
     return SequenceData(int(seed), dets, poses, [f.depth for f in wt.frames], [f.K for f in wt.frames],
                         [int(f.stamp_ns) for f in wt.frames], wt.gt_world, pixels, visible, ms)

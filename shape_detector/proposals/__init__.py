@@ -3,6 +3,9 @@
 * ``geometric`` (:class:`~shape_detector.proposals.geometric.GeometricProposer`): built-in,
   class-agnostic proposals from the depth alone (gravity estimate, floor / wall /
   ceiling removal, gravity-aware clustering); needs no model.
+* ``learned`` (:class:`~shape_detector.proposals.learned.LearnedProposer`): built-in,
+  class-agnostic proposals from a small CenterNet-style network on colour and depth, trained
+  on generated frames (``shape-detector train-proposer``), run as ONNX.
 * ``onnx_yolo`` (:class:`~shape_detector.proposals.onnx_yolo.OnnxYoloProposer`): an
   external YOLOv5 / YOLOv8 ONNX detector run with OpenCV DNN, COCO classes mapped to
   ours (chair, couch -> sofa, bed, dining table -> table, toilet).
@@ -20,7 +23,7 @@ from ..types import Box2D
 
 __all__ = ["Proposal", "get_proposer", "PROPOSERS"]
 
-PROPOSERS = ("geometric", "onnx_yolo")
+PROPOSERS = ("geometric", "learned", "onnx_yolo")
 
 
 @dataclass
@@ -42,8 +45,9 @@ class Proposal:
 
 
 def get_proposer(name: str, **kw: Any):
-    """A proposer by name: 'geometric' (``config=`` or config fields as keywords) or
-    'onnx_yolo' (``model_path=``, ``input_size=``, ``conf=``, ``nms=``)."""
+    """A proposer by name: 'geometric' (``config=`` or config fields as keywords),
+    'learned' (``model_path=``, ``max_proposals=``, ``min_score=``) or 'onnx_yolo'
+    (``model_path=``, ``input_size=``, ``conf=``, ``nms=``)."""
     if name == "geometric":
         from .geometric import GeometricConfig, GeometricProposer
 
@@ -53,6 +57,10 @@ def get_proposer(name: str, **kw: Any):
         elif kw:
             raise TypeError("pass either config= or config fields, not both")
         return GeometricProposer(cfg)
+    if name == "learned":
+        from .learned import LearnedProposer
+
+        return LearnedProposer(**kw)
     if name in ("onnx_yolo", "onnx", "yolo"):
         from .onnx_yolo import OnnxYoloProposer
 
