@@ -270,13 +270,11 @@ class ShapeDetector:
             return np.asarray(gravity.up, dtype=np.float64), float(gravity.confidence), gravity.floor_height, boxes
         if up is not None and self.floor_snap <= 0.0:
             return np.asarray(up, dtype=np.float64), 1.0, None, []
-        from .gravity import auto_stride, estimate_floor_along, estimate_up, make_grid
+        from .gravity import gravity_with_floor
 
-        if up is not None:  # measure the floor along the given up
-            grid = make_grid(depth, K, stride=auto_stride(np.shape(depth)))
-            gravity = estimate_floor_along(grid, np.asarray(K, np.float64), np.asarray(up, np.float64))
+        gravity = gravity_with_floor(depth, K, up)  # a given up: the floor measured along it
+        if up is not None:
             return np.asarray(up, dtype=np.float64), 1.0, gravity.floor_height, []
-        gravity = estimate_up(depth, K)
         return np.asarray(gravity.up, dtype=np.float64), float(gravity.confidence), gravity.floor_height, []
 
     # -- public -----------------------------------------------------------------------

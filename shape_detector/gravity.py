@@ -44,7 +44,7 @@ from .gravity_planes import (
 )
 
 __all__ = ["SOURCES", "DepthGrid", "GravityConfig", "GravityEstimate", "auto_stride", "estimate_floor_along",
-           "estimate_up", "make_grid"]
+           "estimate_up", "gravity_with_floor", "make_grid"]
 
 SOURCES = ("floor", "horizontal", "walls", "prior")
 
@@ -349,3 +349,12 @@ def estimate_floor_along(grid: DepthGrid, K: np.ndarray, up: np.ndarray, gcfg: G
             if est.ceiling_height is not None:
                 out.ceiling_height = est.ceiling_height
     return out
+
+
+def gravity_with_floor(depth: np.ndarray, K: np.ndarray, up: np.ndarray | None = None) -> GravityEstimate:
+    """Gravity for a frame: ``up`` (camera frame) when given, with the floor measured along
+    it (:func:`estimate_floor_along`); else estimated from the depth (:func:`estimate_up`)."""
+    if up is None:
+        return estimate_up(depth, K)
+    K = np.asarray(K, np.float64)
+    return estimate_floor_along(make_grid(depth, K, stride=auto_stride(np.shape(depth))), K, np.asarray(up, np.float64))

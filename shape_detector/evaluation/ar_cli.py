@@ -101,8 +101,7 @@ def main(args: argparse.Namespace) -> int:
         Path(args.save_maps).mkdir(parents=True, exist_ok=True)
     kw = dict(frames=args.frames, width=args.width, height=args.height, use_gt_map=args.gt_map, n_rays=args.rays,
               n_points=args.points, n_pairs=args.pairs, radius=args.radius, agent_radius=args.agent_radius,
-              save_dir=args.save_maps if args.save_maps and not args.gt_map else None,
-              **({"gt_2d": args.gt_2d} if args.gt_2d and not args.gt_map else {}))
+              save_dir=args.save_maps if args.save_maps and not args.gt_map else None, gt_2d=args.gt_2d)
     t0 = time.perf_counter()
     for seed, r in zip(args.seeds, map_seeds(evaluate_seed, args.seeds, config, args.processes, detector, **kw)):
         rows.append(r)

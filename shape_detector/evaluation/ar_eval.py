@@ -261,7 +261,7 @@ def evaluate_walkthrough(seed: int, frames: int = 40, width: int = 640, height: 
     ``SceneMap`` with the true poses; or the true scene with ``use_gt_map``) and score the
     queries on it. ``detector``: a ``ShapeDetector`` (the default one when None);
     ``save_map``: write the detector's map as scene JSON there; ``gt_2d``: the frames' true 2D
-    boxes instead of the detector's proposals (:func:`~.runner.given_boxes2d`)."""
+    boxes instead of the detector's proposals (:func:`~.runner.detect_walkthrough_frame`)."""
     from ..synth.generate import SynthConfig
     from ..synth.walkthrough import walkthrough
 
@@ -274,7 +274,7 @@ def evaluate_walkthrough(seed: int, frames: int = 40, width: int = 640, height: 
         from ..ar.scene_data import load_scene
         from ..poses import camera_up
         from ..scene import SceneMap
-        from .runner import given_boxes2d
+        from .runner import detect_walkthrough_frame
 
         if detector is None:
             from ..detector import ShapeDetector
@@ -282,11 +282,7 @@ def evaluate_walkthrough(seed: int, frames: int = 40, width: int = 640, height: 
             detector = ShapeDetector()
         smap = SceneMap()
         for f, T in zip(wt.frames, wt.poses):
-            boxes = given_boxes2d(f, gt_2d)
-            if boxes is None:
-                objs = detector.detect(f.rgb, f.depth, f.K, up=camera_up(T))
-            else:
-                objs = detector.detect(f.rgb, f.depth, f.K, boxes2d=boxes, up=camera_up(T)) if boxes else []
+            objs = detect_walkthrough_frame(detector, f, camera_up(T), gt_2d)
             smap.update(objs, T, f.depth, f.K, int(f.stamp_ns))
         if save_map:
             smap.save_json(save_map)

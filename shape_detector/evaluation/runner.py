@@ -72,6 +72,16 @@ def given_boxes2d(frame: Frame, gt_2d: str | None) -> list[tuple] | None:
     return boxes if gt_2d == "classes" else [b[:4] for b in boxes]
 
 
+def detect_walkthrough_frame(detector: Any, frame: Frame, up: np.ndarray | None, gt_2d: str | None) -> list[Any]:
+    """``detector.detect`` on a walk-through frame with its own proposals, or with the boxes
+    of :func:`given_boxes2d`; with ``gt_2d`` and nothing in view, no call and no objects (a 2D
+    detector that finds nothing)."""
+    boxes = given_boxes2d(frame, gt_2d)
+    if boxes is None:
+        return detector.detect(frame.rgb, frame.depth, frame.K, up=up)
+    return detector.detect(frame.rgb, frame.depth, frame.K, boxes2d=boxes, up=up) if boxes else []
+
+
 def _stats(values: Sequence[float]) -> dict[str, float]:
     v = np.asarray([x for x in values if x is not None and np.isfinite(x)], dtype=np.float64)
     if v.size == 0:

@@ -78,7 +78,7 @@ def format_table(res: dict[str, Any], args: argparse.Namespace) -> str:
              + (f"poses with noise {args.pose_noise} (drift m/m, deg/m, jitter m, deg)" if args.pose_noise
                 else "true poses")
              + (f"; the true 2D boxes{' and classes' if args.gt_2d == 'classes' else ''} given (--gt-2d)"
-                if getattr(args, "gt_2d", None) else ""),
+                if args.gt_2d else ""),
              f"{'metric':30s} {'map':>9s} {'target':>9s} {'stacked':>9s}"]
     flat = {**{f"mAP@{k}": v for k, v in res["map_mAP"].items()}, **res}
     stacked = {f"mAP@{k}": v for k, v in res["stack_mAP"].items()}

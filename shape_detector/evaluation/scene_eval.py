@@ -97,12 +97,12 @@ def collect_one(seed: int, frames: int, width: int = 640, height: int = 480, det
     auto`` gives it) or ``estimate`` (the detector estimates it per frame). ``pose_noise``:
     a :class:`~.pose_noise.PoseNoise` applied to the poses the map (and the detector's
     gravity) gets, seeded by the sequence; None: the true poses. ``gt_2d``: the frames' true
-    2D boxes instead of the detector's proposals (:func:`~.runner.given_boxes2d`)."""
+    2D boxes instead of the detector's proposals (:func:`~.runner.detect_walkthrough_frame`)."""
     from ..synth.generate import SynthConfig
     from ..synth.walkthrough import walkthrough
     from ..poses import camera_up
     from .pose_noise import PoseNoise, noisy_poses
-    from .runner import given_boxes2d
+    from .runner import detect_walkthrough_frame
 
     wt = walkthrough(int(seed), frames, config=SynthConfig(width=width, height=height))
     poses = noisy_poses(wt.poses, pose_noise or PoseNoise(), seed=int(seed))
@@ -117,11 +117,7 @@ def collect_one(seed: int, frames: int, width: int = 640, height: int = 480, det
     for f, T in zip(wt.frames, poses):
         t0 = time.perf_counter()
         g = camera_up(T) if up == "pose" else None
-        boxes = given_boxes2d(f, gt_2d)
-        if boxes is None:
-            dets.append(detector.detect(f.rgb, f.depth, f.K, up=g))
-        else:  # nothing in view: no call, as a 2D detector that finds nothing
-            dets.append(detector.detect(f.rgb, f.depth, f.K, boxes2d=boxes, up=g) if boxes else [])
+        dets.append(detect_walkthrough_frame(detector, f, g, gt_2d))
         ms.append(1000.0 * (time.perf_counter() - t0))
     return SequenceData(int(seed), dets, poses, [f.depth for f in wt.frames], [f.K for f in wt.frames],
                         [int(f.stamp_ns) for f in wt.frames], wt.gt_world, pixels, visible, ms)

@@ -50,8 +50,7 @@ def decode(heatmap: np.ndarray, reg: np.ndarray, width: int, height: int, k: int
     is the maximum of its 3x3 neighbourhood and scores at least ``min_score``."""
     p = 1.0 / (1.0 + np.exp(-np.asarray(heatmap, dtype=np.float64)))
     hh, ww = p.shape
-    padded = np.pad(p, 1, mode="constant", constant_values=-1.0)
-    win = np.lib.stride_tricks.sliding_window_view(padded, (3, 3)).max(axis=(2, 3))
+    win = cv2.dilate(p, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=-1.0)
     peaks = np.flatnonzero((p >= win) & (p >= min_score))
     order = peaks[np.argsort(-p.ravel()[peaks], kind="stable")][:k]
     iy, ix = np.divmod(order, ww)
@@ -72,15 +71,10 @@ class _Runner:
     ONNX Runtime, else OpenCV DNN."""
 
     def __init__(self, path: Path, num_threads: int = 1) -> None:
-        self.session = None
-        try:
-            import onnxruntime as ort
+        from ..model.onnx_backend import make_session, ort_available
 
-            so = ort.SessionOptions()
-            so.intra_op_num_threads = max(1, int(num_threads))
-            so.inter_op_num_threads = 1
-            self.session = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
-        except ImportError:
+        self.session = make_session(path, num_threads) if ort_available() else None
+        if self.session is None:
             self.net = cv2.dnn.readNetFromONNX(str(path))
 
     def __call__(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -125,14 +119,8 @@ class LearnedProposer:
         """``(GravityEstimate, proposals)`` like the geometric proposer; needs ``rgb``. The
         gravity is ``up`` when given (with the floor measured along it), else estimated
         from the depth."""
-        from ..gravity import auto_stride, estimate_floor_along, estimate_up, make_grid
+        from ..gravity import gravity_with_floor
 
         if rgb is None:
             raise ValueError("the learned proposer needs the RGB frame")
-        K = np.asarray(K, np.float64)
-        if up is not None:
-            grid = make_grid(depth, K, stride=auto_stride(np.shape(depth)))
-            grav = estimate_floor_along(grid, K, np.asarray(up, np.float64))
-        else:
-            grav = estimate_up(depth, K)
-        return grav, self.detect(rgb, depth)
+        return gravity_with_floor(depth, K, up), self.detect(rgb, depth)
