@@ -66,6 +66,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gravity", default="estimate", choices=("estimate", "given"),
                    help="pipeline: estimate gravity per frame (default) or give each frame's true up, as a node "
                         "with a camera pose does (up_source auto)")
+    p.add_argument("--proposal-source", default=None, choices=("geometric", "learned", "hybrid"),
+                   help="pipeline: built-in 2D proposals (default: the realtime preset's)")
     p.add_argument("--processes", type=int, default=2,
                    help="pipeline: also time the node's pipeline with this many detector processes (0: not)")
     p.add_argument("--bag", default=str(Path(__file__).resolve().parents[1] / "bags" / "sample"))
@@ -120,6 +122,7 @@ def bench_pipeline(
     processes: int = 2,
     device: str | None = None,
     gravity: str = "estimate",
+    proposal_source: str | None = None,
 ) -> dict:
     """Median / p95 ms per VGA frame of serial ``ShapeDetector.detect`` (the realtime preset;
     arguments that are not None change its settings) with GT boxes (``gt_boxes``), with 10
@@ -136,7 +139,7 @@ def bench_pipeline(
     overrides = dict(
         precision=precision, weights=weights, score_threshold=score_threshold, num_threads=threads, workers=workers,
         max_objects=max_objects, classifier=None if classifier else False, refine=refine, trace=trace,
-        free_space=free_space, backend=backend, device=device,
+        free_space=free_space, backend=backend, device=device, proposal_source=proposal_source,
     )
     det = ShapeDetector(**{k: v for k, v in overrides.items() if v is not None})
     scenes = _pipeline_frames(frames, data)
@@ -144,7 +147,7 @@ def bench_pipeline(
     cfg = det.config
     print(f"pipeline: {len(scenes)} VGA frames, backend {det.predictor.backend} on {det.predictor.device}, precision {det.predictor.precision}, "
           f"max_objects {cfg.max_objects}, workers {det.predictor.workers} ({cfg.workers or 'auto'}), threads {cfg.num_threads}, "
-          f"score_threshold {cfg.score_threshold}, gravity {gravity}; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs",
+          f"score_threshold {cfg.score_threshold}, gravity {gravity}, proposals {cfg.proposal_source}; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs",
           flush=True)
     out: dict[str, dict] = {}
     given_up = gravity == "given"
@@ -348,7 +351,7 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
             refine=not args.no_refine, pipeline_split=args.pipeline_split, trace=not args.no_trace,
             free_space=not args.no_free_space, backend=args.backend, score_threshold=args.score_threshold,
             data=args.data, peer=not args.no_peer, against=args.against, processes=args.processes,
-            device=args.device, gravity=args.gravity,
+            device=args.device, gravity=args.gravity, proposal_source=args.proposal_source,
         )
     if target == "node":
         from .node_bench import bench_node

@@ -18,7 +18,7 @@ from typing import Any
 
 from .settings import Spec, check, coerce, setting, specs
 
-PROPOSAL_SOURCES = ("geometric", "learned", "external", "onnx")
+PROPOSAL_SOURCES = ("geometric", "learned", "hybrid", "external", "onnx")
 PRECISIONS = ("auto", "fp32", "bf16", "int8")
 BACKENDS = ("auto", "onnxruntime", "torch")
 
@@ -35,7 +35,8 @@ class DetectorConfig:
                               "given boxes without a class; empty = the packaged one, 'none' = off, or a file",
                               node="rebuild")
     proposal_source: str = setting("geometric", "2D proposals: geometric (built in, from the depth), learned "
-                                   "(built in, a small network on colour and depth), external (boxes given with "
+                                   "(built in, a small network on colour and depth), hybrid (both: the network's objects with the "
+                                   "geometric edges where they agree), external (boxes given with "
                                    "each frame / the detections2d topic) or onnx (a YOLO ONNX file, proposal_model)",
                                    choices=PROPOSAL_SOURCES)
     proposal_model: str = setting("", "YOLOv5/v8 ONNX file for proposal_source onnx (COCO classes mapped to ours); "

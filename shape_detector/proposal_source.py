@@ -2,7 +2,9 @@
 
 ``geometric``: built in, class-agnostic, from the depth alone; ``learned``: built in,
 class-agnostic, a small network on colour and depth (``proposal_model`` or the packaged
-one, :mod:`shape_detector.proposals.learned`); ``onnx``: a YOLOv5/v8 ONNX
+one, :mod:`shape_detector.proposals.learned`); ``hybrid``: both, the learned network
+choosing the objects and the geometric proposer their edges
+(:mod:`shape_detector.proposals.hybrid`); ``onnx``: a YOLOv5/v8 ONNX
 file (``proposal_model``) run on the colour image; ``external``: boxes come with each
 frame (``detect(boxes2d=...)``, the node's detections2d topic, a bag's detections topic),
 so the detector builds no proposer.
@@ -42,7 +44,14 @@ def _learned(config: Any) -> Any:
     return get_proposer("learned", model_path=config.proposal_model or None)
 
 
+def _hybrid(config: Any) -> Any:
+    from .proposals import get_proposer
+
+    return get_proposer("hybrid", model_path=config.proposal_model or None)
+
+
 register("geometric", _geometric)
+register("hybrid", _hybrid)
 register("learned", _learned)
 register("onnx", _onnx)
 register("external", lambda config: None)

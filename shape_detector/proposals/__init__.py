@@ -6,6 +6,9 @@
 * ``learned`` (:class:`~shape_detector.proposals.learned.LearnedProposer`): built-in,
   class-agnostic proposals from a small CenterNet-style network on colour and depth, trained
   on generated frames (``shape-detector train-proposer``), run as ONNX.
+* ``hybrid`` (:class:`~shape_detector.proposals.hybrid.HybridProposer`): both of the
+  above, each learned box taking the edges of the geometric box it overlaps
+  (:func:`~shape_detector.proposals.hybrid.fuse`).
 * ``onnx_yolo`` (:class:`~shape_detector.proposals.onnx_yolo.OnnxYoloProposer`): an
   external YOLOv5 / YOLOv8 ONNX detector run with OpenCV DNN, COCO classes mapped to
   ours (chair, couch -> sofa, bed, dining table -> table, toilet).
@@ -23,7 +26,7 @@ from ..types import Box2D
 
 __all__ = ["Proposal", "get_proposer", "PROPOSERS"]
 
-PROPOSERS = ("geometric", "learned", "onnx_yolo")
+PROPOSERS = ("geometric", "learned", "hybrid", "onnx_yolo")
 
 
 @dataclass
@@ -46,8 +49,9 @@ class Proposal:
 
 def get_proposer(name: str, **kw: Any):
     """A proposer by name: 'geometric' (``config=`` or config fields as keywords),
-    'learned' (``model_path=``, ``max_proposals=``, ``min_score=``) or 'onnx_yolo'
-    (``model_path=``, ``input_size=``, ``conf=``, ``nms=``)."""
+    'learned' (``model_path=``, ``max_proposals=``, ``min_score=``), 'hybrid' (``model_path=``
+    of the learned network, ``match_iou=``, ``keep_unmatched=``, ``unmatched_scale=``) or
+    'onnx_yolo' (``model_path=``, ``input_size=``, ``conf=``, ``nms=``)."""
     if name == "geometric":
         from .geometric import GeometricConfig, GeometricProposer
 
@@ -61,6 +65,12 @@ def get_proposer(name: str, **kw: Any):
         from .learned import LearnedProposer
 
         return LearnedProposer(**kw)
+    if name == "hybrid":
+        from .geometric import GeometricProposer
+        from .hybrid import HybridProposer
+        from .learned import LearnedProposer
+
+        return HybridProposer(LearnedProposer(model_path=kw.pop("model_path", None)), GeometricProposer(), **kw)
     if name in ("onnx_yolo", "onnx", "yolo"):
         from .onnx_yolo import OnnxYoloProposer
 
