@@ -227,10 +227,21 @@ def iou_matrix(boxes_a: Sequence[Any], boxes_b: Sequence[Any], up: np.ndarray | 
     return out
 
 
+def _edges(boxes: Sequence[Sequence[float]]) -> np.ndarray:
+    """(N, 4) float ``x1, y1, x2, y2`` of ``(x1, y1, x2, y2, ...)`` boxes."""
+    if len(boxes) == 0:
+        return np.zeros((0, 4))
+    return np.array([[float(v) for v in box[:4]] for box in boxes])
+
+
 def box2d_iou_matrix(boxes_a: Sequence[Sequence[float]], boxes_b: Sequence[Sequence[float]]) -> np.ndarray:
-    """(A,B) 2D IoUs between two lists of ``(x1, y1, x2, y2, ...)`` boxes."""
-    out = np.zeros((len(boxes_a), len(boxes_b)), dtype=np.float64)
-    for i, a in enumerate(boxes_a):
-        for j, b in enumerate(boxes_b):
-            out[i, j] = box2d_iou(a, b)
-    return out
+    """(A,B) 2D IoUs between two lists of ``(x1, y1, x2, y2, ...)`` boxes, as :func:`box2d_iou`
+    gives them one pair at a time (degenerate boxes: 0)."""
+    a, b = _edges(boxes_a), _edges(boxes_b)
+    iw = np.clip(np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0]), 0.0, None)
+    ih = np.clip(np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1]), 0.0, None)
+    inter = iw * ih
+    area_a = np.clip(a[:, 2] - a[:, 0], 0.0, None) * np.clip(a[:, 3] - a[:, 1], 0.0, None)
+    area_b = np.clip(b[:, 2] - b[:, 0], 0.0, None) * np.clip(b[:, 3] - b[:, 1], 0.0, None)
+    union = area_a[:, None] + area_b[None, :] - inter
+    return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0.0)

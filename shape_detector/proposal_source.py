@@ -38,21 +38,20 @@ def _onnx(config: Any) -> Any:
     return get_proposer("onnx_yolo", model_path=config.proposal_model)
 
 
-def _learned(config: Any) -> Any:
-    from .proposals import get_proposer
+def _network(name: str) -> Callable[[Any], Any]:
+    """The builder of a proposer around the learned network (``proposal_model`` or the packaged one)."""
 
-    return get_proposer("learned", model_path=config.proposal_model or None)
+    def build(config: Any) -> Any:
+        from .proposals import get_proposer
 
+        return get_proposer(name, model_path=config.proposal_model or None)
 
-def _hybrid(config: Any) -> Any:
-    from .proposals import get_proposer
-
-    return get_proposer("hybrid", model_path=config.proposal_model or None)
+    return build
 
 
 register("geometric", _geometric)
-register("hybrid", _hybrid)
-register("learned", _learned)
+register("hybrid", _network("hybrid"))
+register("learned", _network("learned"))
 register("onnx", _onnx)
 register("external", lambda config: None)
 

@@ -9,6 +9,7 @@ import pytest
 
 from shape_detector.box_iou import (
     box2d_iou,
+    box2d_iou_matrix,
     box3d_iou,
     box3d_iou_grid,
     clip_convex,
@@ -114,3 +115,15 @@ def test_iou_matrix_and_2d():
     assert box2d_iou((0, 0, 2, 2), (1, 1, 3, 3)) == pytest.approx(1 / 7)
     assert box2d_iou((0, 0, 2, 2, "chair"), (0, 0, 2, 2)) == 1.0
     assert box2d_iou((0, 0, 1, 1), (1, 0, 2, 1)) == 0.0
+
+
+def test_box2d_iou_matrix_equals_the_pairwise_iou():
+    rng = np.random.default_rng(0)
+    a = rng.uniform(0, 100, (12, 4))
+    b = rng.uniform(0, 100, (9, 5))  # a fifth item (a class, a score) is ignored
+    a[:, 2:] = a[:, :2] + rng.uniform(-5, 50, (12, 2))  # some degenerate, inverted boxes
+    b[:, 2:4] = b[:, :2] + rng.uniform(-5, 50, (9, 2))
+    m = box2d_iou_matrix(list(a), list(b))
+    assert m == pytest.approx(np.array([[box2d_iou(x, y) for y in b] for x in a]), abs=1e-12)
+    assert box2d_iou_matrix([(0, 0, 2, 2)], [(1, 1, 3, 3)])[0, 0] == pytest.approx(1 / 7)
+    assert box2d_iou_matrix([], [(0, 0, 1, 1)]).shape == (0, 1)

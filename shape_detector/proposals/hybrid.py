@@ -7,8 +7,8 @@ regressed on a 16-pixel grid and are loose; the geometric proposer's boxes come 
 depth segments and are tight where it finds the object at all. Each learned box that a
 geometric box overlaps by at least ``match_iou`` takes the geometric box's edges and
 keeps the learned score; learned boxes without such a partner stay as they are;
-geometric boxes no learned box claimed follow, their scores moved below the learned
-ones by ``unmatched_scale``, or are left out when ``keep_unmatched`` is False.
+geometric boxes no learned box claimed follow, their scores times ``unmatched_scale``,
+or are left out when ``keep_unmatched`` is False.
 
 Boxes are ``(x1, y1, x2, y2)`` pixel edges.
 """
@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from ..box_iou import box2d_iou_matrix
 from . import Proposal
-from .evaluate import box_iou
 
 
 def fuse(learned: list[Proposal], geometric: list[Proposal], match_iou: float = 0.5,
@@ -32,11 +32,10 @@ def fuse(learned: list[Proposal], geometric: list[Proposal], match_iou: float = 
     first."""
     out: list[Proposal] = []
     used = np.zeros(len(geometric), dtype=bool)
-    iou = (box_iou(np.array([p.box2d for p in learned]), np.array([p.box2d for p in geometric]))
-           if learned and geometric else np.zeros((len(learned), len(geometric))))
+    iou = box2d_iou_matrix([p.box2d for p in learned], [p.box2d for p in geometric])
     for i in np.argsort([-p.score for p in learned], kind="stable"):
-        row = np.where(used, -1.0, iou[i]) if len(geometric) else iou[i]
-        j = int(np.argmax(row)) if len(geometric) else -1
+        row = np.where(used, -1.0, iou[i])
+        j = int(np.argmax(row)) if len(row) else -1
         if j >= 0 and row[j] >= match_iou:
             used[j] = True
             out.append(Proposal(geometric[j].box2d, learned[i].class_name, learned[i].score, "hybrid"))
