@@ -15,9 +15,13 @@ col = x. What unknown cells mean is a choice (``unknown``):
   hold furniture the map has not seen;
 * ``"free"``: every unknown cell is walkable (at ``UNKNOWN_COST``).
 
-Traversable cells keep the radius from every blocked cell. The search is Dijkstra on the
-8-connected cell graph (scipy's compiled graph search); the cell path is then shortened by
-line of sight over traversable cells.
+Traversable cells keep the radius (and the margins of :mod:`.margins`) from every blocked
+cell. Where no such path exists, a plan may *squeeze*: pass up to :data:`SQUEEZE` closer to
+the map's obstacles, without the margins, at :data:`SQUEEZE_COST` times the length, so a
+narrow passage that boxes a few centimetres too large close stays usable, and only where it
+is needed (a costmap's lethal core with a costly band around it, as in nav2). The search is
+Dijkstra on the 8-connected cell graph (scipy's compiled graph search); the cell path is then
+shortened by line of sight over the fully traversable cells and the cells it already uses.
 """
 
 from __future__ import annotations
@@ -42,6 +46,16 @@ UNKNOWN_COST = 2.0
 SNAP_EXTRA = 0.2
 #: radius (m) of the closing that decides which unknown cells are enclosed ("interior")
 INTERIOR_CLOSE = 1.0
+#: metres closer than the agent's radius a plan may pass to the map's obstacles (margins
+#: left out) where no path keeps the full clearance; 0 = never
+SQUEEZE = 0.0
+#: length multiplier of steps onto cells only a squeeze reaches
+SQUEEZE_COST = 20.0
+#: metres beyond the agent's radius (and margins) within which steps cost more, so plans keep
+#: to the middle of a passage where there is room (nav2's inflation cost); 0 = off
+COMFORT = 0.0
+#: extra length multiplier at the inner edge of that band (falling linearly to 0 at its outer edge)
+COMFORT_COST = 3.0
 
 
 def closing(mask: np.ndarray, radius_cells: float) -> np.ndarray:
@@ -82,12 +96,15 @@ def traversable(grid: NavGrid, agent_radius: float, unknown: str = "interior") -
 @dataclass
 class CellGraph:
     """8-connected graph of traversable cells: ``mask`` (H,W), ``index`` (H,W) node of each
-    cell (-1: none), ``cells`` (n,2) row/col of each node, ``matrix`` edge lengths in cells."""
+    cell (-1: none), ``cells`` (n,2) row/col of each node, ``matrix`` edge lengths in cells;
+    ``preferred`` (H,W): the cells with the full clearance (None: all of ``mask``)."""
 
     mask: np.ndarray
     index: np.ndarray
     cells: np.ndarray
     matrix: csr_matrix
+    preferred: np.ndarray | None = None
+    sight: np.ndarray | None = None
 
 
 def build_graph(mask: np.ndarray, cost: np.ndarray | None = None) -> CellGraph:
@@ -130,13 +147,20 @@ def _center(grid: NavGrid, rc: np.ndarray) -> np.ndarray:
 
 
 def _snap(g: CellGraph, rc: np.ndarray, max_cells: float) -> np.ndarray | None:
-    """The traversable cell nearest to ``rc`` within ``max_cells`` (row, col), or None."""
+    """The traversable cell nearest to ``rc`` within ``max_cells`` (row, col), or None: a
+    cell with the full clearance where there is one in reach, else any node of the graph."""
     H, W = g.mask.shape
-    if 0 <= rc[0] < H and 0 <= rc[1] < W and g.mask[rc[0], rc[1]]:
-        return rc
+    inside = 0 <= rc[0] < H and 0 <= rc[1] < W
+    for mask in ((g.mask,) if g.preferred is None else (g.preferred, g.mask)):
+        if inside and mask[rc[0], rc[1]]:
+            return rc
     if len(g.cells) == 0:
         return None
     d = np.hypot(*(g.cells - rc).T)
+    if g.preferred is not None:
+        pref = g.preferred[g.cells[:, 0], g.cells[:, 1]]
+        if pref.any() and d[pref].min() <= max_cells:
+            d = np.where(pref, d, np.inf)
     k = int(np.argmin(d))
     return g.cells[k] if d[k] <= max_cells else None
 
@@ -209,7 +233,13 @@ def plan_on_graph(grid: NavGrid, g: CellGraph, start_xy: np.ndarray, goal_xy: np
         while path_idx[-1] != si:
             path_idx.append(int(pred[path_idx[-1]]))
         path_idx.reverse()
-    cells = smooth(g.mask, g.cells[path_idx])
+    cells = g.cells[path_idx]
+    if g.preferred is None:
+        cells = smooth(g.mask, cells)
+    else:  # shortcuts may not cut into squeezed cells the path does not already use
+        sight = (g.preferred if g.sight is None else g.sight).copy()
+        sight[cells[:, 0], cells[:, 1]] = True
+        cells = smooth(sight, cells)
     pts = _center(grid, cells)
     # keep the exact start / goal when they lie in their (traversable) cells
     if np.array_equal(s, _cell_of(grid, s_xy)):
@@ -221,10 +251,32 @@ def plan_on_graph(grid: NavGrid, g: CellGraph, start_xy: np.ndarray, goal_xy: np
     return [(float(x), float(y)) for x, y in pts]
 
 
-def nav_graph(grid: NavGrid, agent_radius: float, unknown: str = "interior") -> CellGraph:
-    """The navigation graph of a grid for a disc of ``agent_radius`` m."""
-    _, cost = walkable(grid, unknown)
-    return build_graph(traversable(grid, agent_radius, unknown), cost)
+def nav_graph(grid: NavGrid, agent_radius: float, unknown: str = "interior", base: NavGrid | None = None,
+              squeeze: float = SQUEEZE) -> CellGraph:
+    """The navigation graph of a grid for a disc of ``agent_radius`` m: the cells with the
+    full clearance in ``grid``, plus (at :data:`SQUEEZE_COST`) those ``squeeze`` m closer to
+    the obstacles of ``base`` (the grid without margins; default ``grid``)."""
+    if not (np.isfinite(squeeze) and squeeze >= 0.0):
+        raise ValueError(f"squeeze={squeeze} must be finite and >= 0 (metres)")
+    preferred = traversable(grid, agent_radius, unknown)
+    if squeeze == 0.0:
+        _, cost = walkable(grid, unknown)
+        return build_graph(preferred, cost)
+    base = grid if base is None else base
+    allowed = preferred | traversable(base, max(float(agent_radius) - squeeze, 0.0), unknown)
+    _, cost = walkable(base, unknown)
+    cost = np.where(preferred, cost, SQUEEZE_COST * cost)
+    sight = None
+    if COMFORT > 0:
+        free, _ = walkable(grid, unknown)
+        dist = ndimage.distance_transform_edt(free) * float(grid.resolution) - 0.5 * float(grid.resolution)
+        band = preferred & (dist <= agent_radius + COMFORT)
+        cost = np.where(band, cost * (1 + COMFORT_COST * (agent_radius + COMFORT - dist) / COMFORT), cost)
+        sight = preferred & ~band
+    g = build_graph(allowed, cost)
+    g.preferred = preferred
+    g.sight = sight
+    return g
 
 
 def default_snap(agent_radius: float) -> float:
@@ -235,30 +287,32 @@ def default_snap(agent_radius: float) -> float:
     return float(agent_radius) + SNAP_EXTRA
 
 
-def planning_grid(scene_or_grid: Any, uncertainty: float = UNCERTAINTY) -> NavGrid:
-    """The grid plans run on: a scene's grid with the margins of :mod:`.margins` around its
-    objects (a bare grid as it is)."""
+def planning_grids(scene_or_grid: Any, uncertainty: float = UNCERTAINTY) -> tuple[NavGrid, NavGrid]:
+    """``(padded, base)``: the grid plans keep the full clearance on (a scene's grid with the
+    margins of :mod:`.margins` around its objects) and the grid itself (a bare grid: both)."""
     if isinstance(scene_or_grid, NavGrid) or hasattr(scene_or_grid, "resolution"):
-        return as_grid(scene_or_grid)
+        grid = as_grid(scene_or_grid)
+        return grid, grid
     scene = load_scene(scene_or_grid)
     if scene.grid is None:
         raise ValueError("the scene has no navigation grid")
-    return padded_grid(scene.grid, scene.objects, uncertainty)
+    return padded_grid(scene.grid, scene.objects, uncertainty), scene.grid
 
 
 def plan(scene_or_grid: Any, start_xy: np.ndarray, goal_xy: np.ndarray, agent_radius: float = 0.2,
          unknown: str = "interior", snap_distance: float | None = None,
-         uncertainty: float = UNCERTAINTY) -> list[tuple[float, float]] | None:
+         uncertainty: float = UNCERTAINTY, squeeze: float = SQUEEZE) -> list[tuple[float, float]] | None:
     """Shortest path (world (x, y) waypoints, metres) for a disc of ``agent_radius`` from
     ``start_xy`` to ``goal_xy`` on the grid of a scene (or a ``NavGrid``-like grid); None when
     no path exists; ``unknown``: what unknown cells mean (module doc); ``uncertainty``:
     standard deviations of each box face's spread kept as extra distance (:mod:`.margins`;
-    0 = none). ``snap_distance`` (default :func:`default_snap`) lets a start or goal inside the
-    inflated margin move to the nearest traversable cell. Builds the graph on every call:
-    use ``SceneQueries.plan`` to reuse it."""
+    0 = none); ``squeeze``: how much closer (m) a plan may pass where nothing else gets
+    through (module doc; 0 = never). ``snap_distance`` (default :func:`default_snap`) lets a
+    start or goal inside the inflated margin move to the nearest traversable cell. Builds the
+    graph on every call: use ``SceneQueries.plan`` to reuse it."""
     if not np.isfinite(agent_radius) or agent_radius < 0:
         raise ValueError(f"agent_radius={agent_radius} must be finite and >= 0 (metres)")
-    grid = planning_grid(scene_or_grid, uncertainty)
-    g = nav_graph(grid, agent_radius, unknown)
+    padded, grid = planning_grids(scene_or_grid, uncertainty)
+    g = nav_graph(padded, agent_radius, unknown, grid, squeeze)
     snap = default_snap(agent_radius) if snap_distance is None else float(snap_distance)
     return plan_on_graph(grid, g, start_xy, goal_xy, snap)

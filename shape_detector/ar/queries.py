@@ -32,7 +32,7 @@ class SceneQueries:
         """``scene``: a ``SceneMap``, an ``ArScene``, scene objects, the JSON dict or its path; a
         live ``SceneMap`` is copied as it is now (make new queries after it updates)."""
         self.scene = load_scene(scene)
-        self._graphs: dict[tuple[float, str], planning.CellGraph] = {}
+        self._graphs: dict[tuple[float, str, float, float], planning.CellGraph] = {}
         self._surfaces: list[Surface] | None = None
 
     @classmethod
@@ -69,26 +69,28 @@ class SceneQueries:
         """First hits of N rays (arrays; distance inf = no hit); ``surfaces`` as :meth:`raycast`."""
         return raycast_many(self.scene, origins, directions, max_distance, surfaces=surfaces)
 
-    def graph(self, agent_radius: float, unknown: str = "interior",
-              uncertainty: float = UNCERTAINTY) -> planning.CellGraph:
+    def graph(self, agent_radius: float, unknown: str = "interior", uncertainty: float = UNCERTAINTY,
+              squeeze: float = planning.SQUEEZE) -> planning.CellGraph:
         """The cached navigation graph for a disc of ``agent_radius`` m (margins of
-        ``uncertainty`` standard deviations, :mod:`.margins`)."""
+        ``uncertainty`` standard deviations, :mod:`.margins`; ``squeeze`` as :func:`.planning.plan`)."""
         if self.scene.grid is None:
             raise ValueError("this scene has no navigation grid")
-        key = (round(float(agent_radius), 6), str(unknown), round(float(uncertainty), 6))
+        key = (round(float(agent_radius), 6), str(unknown), round(float(uncertainty), 6), round(float(squeeze), 6))
         if key not in self._graphs:
-            grid = planning.planning_grid(self.scene, uncertainty)
-            self._graphs[key] = planning.nav_graph(grid, agent_radius, unknown)
+            padded, grid = planning.planning_grids(self.scene, uncertainty)
+            self._graphs[key] = planning.nav_graph(padded, agent_radius, unknown, grid, squeeze)
         return self._graphs[key]
 
     def plan(self, start_xy: Any, goal_xy: Any, agent_radius: float = 0.2, unknown: str = "interior",
-             snap_distance: float | None = None, uncertainty: float = UNCERTAINTY) -> list[tuple[float, float]] | None:
+             snap_distance: float | None = None, uncertainty: float = UNCERTAINTY,
+             squeeze: float = planning.SQUEEZE) -> list[tuple[float, float]] | None:
         """Smoothed shortest path (world (x, y) waypoints) on the grid, or None; ``unknown``:
         ``"interior"`` (default), ``"blocked"`` or ``"free"`` (see :mod:`.planning`);
-        ``uncertainty``: margins where the map is unsure of a box (:mod:`.margins`, 0 = none)."""
+        ``uncertainty``: margins where the map is unsure of a box (:mod:`.margins`, 0 = none);
+        ``squeeze``: how much closer (m) a plan may pass where nothing else gets through (0 = never)."""
         if not np.isfinite(agent_radius) or agent_radius < 0:
             raise ValueError(f"agent_radius={agent_radius} must be finite and >= 0 (metres)")
-        g = self.graph(agent_radius, unknown, uncertainty)
+        g = self.graph(agent_radius, unknown, uncertainty, squeeze)
         snap = planning.default_snap(agent_radius) if snap_distance is None else float(snap_distance)
         return planning.plan_on_graph(self.scene.grid, g, start_xy, goal_xy, snap)
 

@@ -176,7 +176,7 @@ def plan_metric(truth: Truth, m: ArScene, n_pairs: int, rng: np.random.Generator
     free = traversable(truth.grid, agent_radius, "blocked")  # the true grid has no unknown cells
     a, b = _free_points(free, truth.grid, 6 * n_pairs, rng), _free_points(free, truth.grid, 6 * n_pairs, rng)
     seen = (_cell_values(m.grid, a) == 0) & (_cell_values(m.grid, b) == 0)
-    pairs = [(s, g) for s, g in zip(a[seen], b[seen]) if tq.plan(s, g, agent_radius, snap_distance=0.0) is not None]
+    pairs = [(s, g) for s, g in zip(a[seen], b[seen]) if tq.plan(s, g, agent_radius, snap_distance=0.0, squeeze=0.0) is not None]
     pairs = pairs[:n_pairs]
     out = {"plan_pairs": float(len(pairs))}
     for k, policy in enumerate(policies):
