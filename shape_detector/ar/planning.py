@@ -259,23 +259,22 @@ def nav_graph(grid: NavGrid, agent_radius: float, unknown: str = "interior", bas
     if not (np.isfinite(squeeze) and squeeze >= 0.0):
         raise ValueError(f"squeeze={squeeze} must be finite and >= 0 (metres)")
     preferred = traversable(grid, agent_radius, unknown)
-    if squeeze == 0.0:
-        _, cost = walkable(grid, unknown)
-        return build_graph(preferred, cost)
-    base = grid if base is None else base
-    allowed = preferred | traversable(base, max(float(agent_radius) - squeeze, 0.0), unknown)
-    _, cost = walkable(base, unknown)
+    allowed, cost_grid = preferred, grid
+    if squeeze > 0.0:
+        cost_grid = grid if base is None else base
+        allowed = preferred | traversable(cost_grid, max(float(agent_radius) - squeeze, 0.0), unknown)
+    _, cost = walkable(cost_grid, unknown)
     cost = np.where(preferred, cost, SQUEEZE_COST * cost)
     sight = None
-    if COMFORT > 0:
+    if COMFORT > 0:  # applies with or without a squeeze
         free, _ = walkable(grid, unknown)
         dist = ndimage.distance_transform_edt(free) * float(grid.resolution) - 0.5 * float(grid.resolution)
         band = preferred & (dist <= agent_radius + COMFORT)
         cost = np.where(band, cost * (1 + COMFORT_COST * (agent_radius + COMFORT - dist) / COMFORT), cost)
         sight = preferred & ~band
     g = build_graph(allowed, cost)
-    g.preferred = preferred
-    g.sight = sight
+    if squeeze > 0.0 or sight is not None:
+        g.preferred, g.sight = preferred, sight
     return g
 
 
