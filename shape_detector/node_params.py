@@ -76,6 +76,9 @@ class NodeConfig:
     plan_uncertainty: float = setting(0.5, "~/get_plan keeps this many standard deviations of each box face's "
                                       "spread over its observations as extra distance (at most 10 cm; 0 = none)",
                                       range=(0.0, 5.0))
+    plan_squeeze: float = setting(0.02, "where no ~/get_plan path keeps inflation_radius (and the margins), one may "
+                                  "pass up to this much closer to the map's obstacles at a high cost, m (0 = never)",
+                                  range=(0.0, 0.5))
     scene_confirm_observations: int = setting(3, "a tracked object is published once detected in this many "
                                               "frames", range=(1, 1000))
     scene_delete_misses: int = setting(3, "a tracked object is removed after this many frames that see its space "

@@ -98,6 +98,7 @@ class SceneFeed:
         self.pose_timeout = float(p["pose_timeout"])
         self.plan_unknown = str(p.get("plan_unknown", "interior"))  # ~/get_plan's unknown cells
         self.plan_uncertainty = float(p.get("plan_uncertainty", 0.5))  # ~/get_plan's margins (standard deviations)
+        self.plan_squeeze = float(p.get("plan_squeeze", 0.02))  # ~/get_plan's squeeze (m)
         self.posed = False  # the map holds world-frame data
         self.static_updates = 0  # updates made without a pose (auto / none)
         self.version = 0  # bumped by every map update
@@ -258,7 +259,8 @@ def answer_plan(feed: SceneFeed | None, request: Any, types: Any, stamp_ns: int,
         with feed.lock:  # a plan needs no observed surfaces: skip the pass over them
             queries = SceneQueries(ArScene(load_scene(feed.map.objects()).objects, feed.map.grid(), frame))
         result = plan_request(queries, request, frame, agent_radius=feed.config.inflation_radius,
-                              unknown=feed.plan_unknown, uncertainty=feed.plan_uncertainty)
+                              unknown=feed.plan_unknown, uncertainty=feed.plan_uncertainty,
+                              squeeze=feed.plan_squeeze)
     if not result.ok:
         warn("get_plan", f"get_plan: no path ({result.message})", level="info")
     return path_message(result, types, stamp_ns, frame)

@@ -56,15 +56,15 @@ def box_object(oid: int, cls: str, center, size, yaw: float = 0.0) -> SceneObjec
     return SceneObject(oid, cls, 1.0, np.array(center, float), np.array(size, float), rotz(yaw), primitives=[])
 
 
-def wall_grid(gap: bool = True, res: float = 0.05) -> NavGrid:
+def wall_grid(gap: bool = True, res: float = 0.05, width: float = 1.0) -> NavGrid:
     """A 4 m x 4 m free floor at origin (0, 0) with a 10 cm wall along x = 2 m; with ``gap``
-    the wall leaves a 1 m opening for y in [1.5, 2.5]."""
+    the wall leaves an opening ``width`` m wide from y = 1.5 m (default: y in [1.5, 2.5])."""
     n = int(round(4.0 / res))
     data = np.zeros((n, n), np.int8)
     col = int(round(2.0 / res))
     data[:, col : col + 2] = 100
     if gap:
-        data[int(round(1.5 / res)) : int(round(2.5 / res)), col : col + 2] = 0
+        data[int(round(1.5 / res)) : int(round((1.5 + width) / res)), col : col + 2] = 0
     return NavGrid(res, np.zeros(2), data)
 
 

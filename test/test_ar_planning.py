@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from ar_scenes import wall_grid
 
-from shape_detector.ar import ArScene, plan
+from shape_detector.ar import ArScene, plan, planning
 from shape_detector.scene.grid import NavGrid
-from shape_detector.ar.planning import traversable, visible
+from shape_detector.ar.planning import COMFORT, traversable, visible
 
 
 def _clearance(grid: NavGrid, path: list[tuple[float, float]], step: float = 0.01) -> float:
@@ -19,6 +19,10 @@ def _clearance(grid: NavGrid, path: list[tuple[float, float]], step: float = 0.0
     return float(np.min(np.linalg.norm(pts[:, None] - occ[None], axis=2)))
 
 
+def _length(path: list[tuple[float, float]]) -> float:
+    return float(np.sum(np.linalg.norm(np.diff(np.array(path), axis=0), axis=1)))
+
+
 def test_path_through_the_gap() -> None:
     g = wall_grid(gap=True)
     path = plan(g, (1.0, 0.5), (3.0, 0.5), agent_radius=0.2)
@@ -26,10 +30,50 @@ def test_path_through_the_gap() -> None:
     assert path[0] == (1.0, 0.5) and path[-1] == (3.0, 0.5)
     p = np.array(path)
     length = float(np.sum(np.linalg.norm(np.diff(p, axis=0), axis=1)))
-    # straight through the opening (y in [1.5, 2.5], margin 0.2 m): about 2 x hypot(1, 1.2)
-    assert 2 * np.hypot(1.0, 1.2) - 0.05 < length < 2 * np.hypot(1.0, 1.2) + 0.25
+    # through the opening (y in [1.5, 2.5]) passing the wall's end at the radius (0.2 m) plus
+    # at most the comfort band: about 2 x hypot(1, 1.2 + COMFORT)
+    assert 2 * np.hypot(1.0, 1.2) - 0.05 < length < 2 * np.hypot(1.0, 1.2 + COMFORT) + 0.25
     assert len(path) <= 5  # smoothed: a few corners, not a staircase of cells
     assert _clearance(g, path) >= 0.2 - 1e-6
+
+
+def test_comfort_keeps_plans_off_the_walls_where_there_is_room(monkeypatch: pytest.MonkeyPatch) -> None:
+    g = wall_grid(gap=True)
+    tight = plan(g, (1.0, 0.5), (3.0, 0.5), agent_radius=0.2)
+    monkeypatch.setattr(planning, "COMFORT", 0.0)
+    bare = plan(g, (1.0, 0.5), (3.0, 0.5), agent_radius=0.2)
+    # the band's cost pulls the path towards the opening's middle (y = 2 m): clearer, a little longer
+    def crossing(path: list[tuple[float, float]]) -> float:
+        p = np.array(path)
+        pts = np.concatenate([np.linspace(a, b, 400) for a, b in zip(p[:-1], p[1:])])
+        return float(np.mean(pts[(pts[:, 0] >= 2.0) & (pts[:, 0] <= 2.1), 1]))
+
+    assert abs(crossing(tight) - 2.0) < abs(crossing(bare) - 2.0) - 0.05
+    assert _clearance(g, tight) > _clearance(g, bare) + 0.01
+    assert _length(bare) < _length(tight) < _length(bare) + 0.3
+
+
+def test_squeeze_through_a_passage_a_little_too_narrow() -> None:
+    g = wall_grid(gap=True, width=0.45)  # 9 cells: the middle one 0.225 m from each side
+    assert plan(g, (1.0, 0.5), (3.0, 0.5), agent_radius=0.24, squeeze=0.0) is None
+    path = plan(g, (1.0, 0.5), (3.0, 0.5), agent_radius=0.24, squeeze=0.02)
+    assert path is not None and path[0] == (1.0, 0.5) and path[-1] == (3.0, 0.5)
+    assert _clearance(g, path) >= 0.22 - 1e-6
+    # only where it must: away from the opening the path keeps the full radius from the wall
+    p = np.array(path)
+    pts = np.concatenate([np.linspace(a, b, 200) for a, b in zip(p[:-1], p[1:])])
+    away = pts[np.abs(pts[:, 1] - 1.725) > 0.3]
+    assert np.min(np.abs(away[:, 0] - 2.05)) - 0.05 >= 0.24 - 1e-6
+    assert plan(g, (1.0, 0.5), (3.0, 0.5), agent_radius=0.27, squeeze=0.02) is None  # 4.5 cm short
+    with pytest.raises(ValueError):
+        plan(g, (1.0, 0.5), (3.0, 0.5), squeeze=-0.1)
+
+
+def test_a_squeeze_only_when_nothing_else_gets_through() -> None:
+    g = wall_grid(gap=True, width=0.45)
+    g.data[60:75, 40:42] = 0  # a second opening, wide, 1.7 m further up
+    path = np.array(plan(g, (1.0, 1.7), (3.0, 1.7), agent_radius=0.24))
+    assert path[:, 1].max() > 2.9  # the detour through the wide opening, not the 2 m straight squeeze
 
 
 def test_no_path_through_a_closed_wall() -> None:

@@ -15,6 +15,14 @@ def test_defaults_are_valid():
     assert validate_all({k: v.default for k, v in PARAMETERS.items()}) == []
 
 
+def test_plan_defaults_match_the_library():
+    from shape_detector.ar.margins import UNCERTAINTY
+    from shape_detector.ar.planning import SQUEEZE
+
+    assert PARAMETERS["plan_uncertainty"].default == UNCERTAINTY
+    assert PARAMETERS["plan_squeeze"].default == SQUEEZE
+
+
 @pytest.mark.parametrize("name, value", [
     ("depth_scale", -0.001), ("max_objects", 0), ("max_objects", -3), ("score_threshold", 1.5),
     ("score_threshold", -0.1), ("score_threshold", math.nan), ("sync_slop", math.inf), ("qos_depth", 0),

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from .margins import UNCERTAINTY
+from .planning import SQUEEZE
 from .queries import SceneQueries
 
 
@@ -47,10 +48,12 @@ def densify(waypoints: np.ndarray, step: float) -> np.ndarray:
 
 
 def plan_request(queries: SceneQueries, request: Any, frame_id: str, agent_radius: float = 0.2,
-                 step: float = 0.05, unknown: str = "interior", uncertainty: float = UNCERTAINTY) -> PlanResult:
+                 step: float = 0.05, unknown: str = "interior", uncertainty: float = UNCERTAINTY,
+                 squeeze: float = SQUEEZE) -> PlanResult:
     """Answer a GetPlan request on the map: a path for a disc of ``agent_radius`` m, resampled
-    every ``step`` m, with ``unknown`` cells treated as :mod:`.planning` says and margins of
-    ``uncertainty`` standard deviations (:mod:`.margins`). ``request.tolerance`` (m) widens how
+    every ``step`` m, with ``unknown`` cells treated as :mod:`.planning` says, margins of
+    ``uncertainty`` standard deviations (:mod:`.margins`) and a ``squeeze`` (m) where nothing
+    else gets through (:mod:`.planning`). ``request.tolerance`` (m) widens how
     far start and goal may move onto traversable floor (at least the radius). Empty frame ids
     count as ``frame_id``."""
     try:
@@ -68,7 +71,7 @@ def plan_request(queries: SceneQueries, request: Any, frame_id: str, agent_radiu
     tol = float(getattr(request, "tolerance", 0.0) or 0.0)
     snap = max(agent_radius, tol if np.isfinite(tol) else 0.0)
     path = queries.plan(start, goal, agent_radius=agent_radius, unknown=unknown, snap_distance=snap,
-                        uncertainty=uncertainty)
+                        uncertainty=uncertainty, squeeze=squeeze)
     if path is None:
         return PlanResult(False, np.zeros((0, 4)), "no path")
     pts = densify(np.array(path), step)

@@ -19,9 +19,12 @@ Traversable cells keep the radius (and the margins of :mod:`.margins`) from ever
 cell. Where no such path exists, a plan may *squeeze*: pass up to :data:`SQUEEZE` closer to
 the map's obstacles, without the margins, at :data:`SQUEEZE_COST` times the length, so a
 narrow passage that boxes a few centimetres too large close stays usable, and only where it
-is needed (a costmap's lethal core with a costly band around it, as in nav2). The search is
-Dijkstra on the 8-connected cell graph (scipy's compiled graph search); the cell path is then
-shortened by line of sight over the fully traversable cells and the cells it already uses.
+is needed (a costmap's lethal core with a costly band around it, as in nav2). Steps within
+:data:`COMFORT` beyond the full clearance cost more, up to :data:`COMFORT_COST` times more at
+its inner edge (nav2's inflation cost), so plans keep to the middle of a passage where there
+is room. The search is Dijkstra on the 8-connected cell graph (scipy's compiled graph search);
+the cell path is then shortened by line of sight over the fully traversable cells and the
+cells it already uses.
 """
 
 from __future__ import annotations
@@ -48,12 +51,12 @@ SNAP_EXTRA = 0.2
 INTERIOR_CLOSE = 1.0
 #: metres closer than the agent's radius a plan may pass to the map's obstacles (margins
 #: left out) where no path keeps the full clearance; 0 = never
-SQUEEZE = 0.0
+SQUEEZE = 0.02
 #: length multiplier of steps onto cells only a squeeze reaches
 SQUEEZE_COST = 20.0
 #: metres beyond the agent's radius (and margins) within which steps cost more, so plans keep
 #: to the middle of a passage where there is room (nav2's inflation cost); 0 = off
-COMFORT = 0.0
+COMFORT = 0.1
 #: extra length multiplier at the inner edge of that band (falling linearly to 0 at its outer edge)
 COMFORT_COST = 3.0
 
@@ -82,15 +85,22 @@ def walkable(grid: NavGrid, unknown: str = "interior") -> tuple[np.ndarray, np.n
     return free | unk, np.where(unk, UNKNOWN_COST, 1.0)
 
 
-def traversable(grid: NavGrid, agent_radius: float, unknown: str = "interior") -> np.ndarray:
-    """(H, W) bool: walkable cells whose centre is farther than ``agent_radius`` (m) from every
-    blocked cell: from the cell's area, taken as its centre's distance minus half a cell,
-    since an obstacle may reach up to the edge of the cells it marks."""
+def clearance(grid: NavGrid, unknown: str = "interior") -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) bool walkable cells and (H, W) float metres from each cell's area to the nearest
+    blocked cell: its centre's distance minus half a cell, since an obstacle may reach up to
+    the edge of the cells it marks (inf everywhere when nothing is blocked)."""
     free, _ = walkable(grid, unknown)
-    if not free.any() or free.all():
-        return free
-    dist = ndimage.distance_transform_edt(free) * float(grid.resolution)
-    return free & (dist > float(agent_radius) + 0.5 * float(grid.resolution))
+    if free.all():
+        return free, np.full(free.shape, np.inf)
+    res = float(grid.resolution)
+    return free, ndimage.distance_transform_edt(free) * res - 0.5 * res
+
+
+def traversable(grid: NavGrid, agent_radius: float, unknown: str = "interior") -> np.ndarray:
+    """(H, W) bool: walkable cells farther than ``agent_radius`` (m) from every blocked cell
+    (see :func:`clearance`)."""
+    free, dist = clearance(grid, unknown)
+    return free & (dist > float(agent_radius))
 
 
 @dataclass
@@ -104,7 +114,6 @@ class CellGraph:
     cells: np.ndarray
     matrix: csr_matrix
     preferred: np.ndarray | None = None
-    sight: np.ndarray | None = None
 
 
 def build_graph(mask: np.ndarray, cost: np.ndarray | None = None) -> CellGraph:
@@ -237,7 +246,7 @@ def plan_on_graph(grid: NavGrid, g: CellGraph, start_xy: np.ndarray, goal_xy: np
     if g.preferred is None:
         cells = smooth(g.mask, cells)
     else:  # shortcuts may not cut into squeezed cells the path does not already use
-        sight = (g.preferred if g.sight is None else g.sight).copy()
+        sight = g.preferred.copy()
         sight[cells[:, 0], cells[:, 1]] = True
         cells = smooth(sight, cells)
     pts = _center(grid, cells)
@@ -258,23 +267,20 @@ def nav_graph(grid: NavGrid, agent_radius: float, unknown: str = "interior", bas
     the obstacles of ``base`` (the grid without margins; default ``grid``)."""
     if not (np.isfinite(squeeze) and squeeze >= 0.0):
         raise ValueError(f"squeeze={squeeze} must be finite and >= 0 (metres)")
-    preferred = traversable(grid, agent_radius, unknown)
+    free, dist = clearance(grid, unknown)
+    preferred = free & (dist > float(agent_radius))
     allowed, cost_grid = preferred, grid
     if squeeze > 0.0:
         cost_grid = grid if base is None else base
         allowed = preferred | traversable(cost_grid, max(float(agent_radius) - squeeze, 0.0), unknown)
     _, cost = walkable(cost_grid, unknown)
     cost = np.where(preferred, cost, SQUEEZE_COST * cost)
-    sight = None
-    if COMFORT > 0:  # applies with or without a squeeze
-        free, _ = walkable(grid, unknown)
-        dist = ndimage.distance_transform_edt(free) * float(grid.resolution) - 0.5 * float(grid.resolution)
+    if COMFORT > 0:
         band = preferred & (dist <= agent_radius + COMFORT)
         cost = np.where(band, cost * (1 + COMFORT_COST * (agent_radius + COMFORT - dist) / COMFORT), cost)
-        sight = preferred & ~band
     g = build_graph(allowed, cost)
-    if squeeze > 0.0 or sight is not None:
-        g.preferred, g.sight = preferred, sight
+    if squeeze > 0.0:
+        g.preferred = preferred
     return g
 
 
