@@ -62,7 +62,8 @@ class DetectorConfig:
                              "fp32 for the class-given second pass; torch: bfloat16 "
                              "for 4+ frustums on CPUs with AMX, else fp32), fp32, bf16 (torch), or int8 "
                              "(onnxruntime: every pass's box and shape PointNets in int8, a quarter less network "
-                             "time, accuracy in the model card)", choices=PRECISIONS)
+                             "time, accuracy in the model card); auto and int8 also run the learned 2D proposer "
+                             "(proposal_source learned / hybrid) in int8", choices=PRECISIONS)
     trace: bool = setting(True, "run the PyTorch network as frozen TorchScript graphs (releases the GIL)")
     num_threads: int = setting(1, "intra-op threads of the network; 0 keeps the runtime's default",
                                range=(0, 256))

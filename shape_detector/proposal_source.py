@@ -44,7 +44,7 @@ def _network(name: str) -> Callable[[Any], Any]:
     def build(config: Any) -> Any:
         from .proposals import get_proposer
 
-        return get_proposer(name, model_path=config.proposal_model or None)
+        return get_proposer(name, model_path=config.proposal_model or None, precision=config.precision)
 
     return build
 

@@ -9,8 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from shape_detector.box_iou import box2d_iou_matrix
 from shape_detector.proposals.learned import (DEFAULT_MODEL, INPUT_SIZE, STRIDE, LearnedProposer, decode,
-                                              prepare_input)
+                                              model_file, prepare_input)
+from shape_detector.proposals.learned_int8 import int8_path, int8_source_matches
 from shape_detector.training.train_proposer import targets
 
 OUT = (INPUT_SIZE[0] // STRIDE, INPUT_SIZE[1] // STRIDE)
@@ -119,3 +121,53 @@ def test_train_proposer_writes_an_onnx_graph_that_matches_torch(tmp_path, monkey
         np.testing.assert_allclose(g, w, atol=1e-3)
     bad = p.parse_args(["--data", str(tmp_path / "missing"), "--out", str(out)])
     assert train_proposer.main(bad) == 2
+    # and its int8 version, from the same calibration frames, rebuilt alone to the same bytes
+    q = int8_path(out)
+    meta = json.loads(Path(str(q) + ".json").read_text())
+    assert meta["source_sha256"] == prov["sha256"] and meta["calibration_frames"] == 6
+    assert model_file(out) == q and model_file(out, "fp32") == out
+    before = q.read_bytes()
+    q.unlink()
+    assert train_proposer.main(p.parse_args(["--data", str(data), "--out", str(out), "--int8-only"])) == 0
+    assert q.read_bytes() == before
+    none = p.parse_args(["--data", str(data), "--out", str(tmp_path / "none.onnx"), "--int8-only"])
+    assert train_proposer.main(none) == 2
+
+
+def test_the_packaged_int8_network_is_built_from_the_packaged_network_and_agrees_with_it():
+    from shape_detector.synth.generate import SynthConfig, generate_frame
+
+    assert model_file(DEFAULT_MODEL) == int8_path(DEFAULT_MODEL)
+    assert int8_source_matches(int8_path(DEFAULT_MODEL), DEFAULT_MODEL)
+    fp32, int8 = LearnedProposer(precision="fp32"), LearnedProposer()
+    assert fp32.path == DEFAULT_MODEL and int8.path == int8_path(DEFAULT_MODEL)
+    twins, total = 0, 0
+    for seed in (10_005, 10_006, 10_007):
+        f = generate_frame(seed, SynthConfig(width=640, height=480))
+        a = [p.box2d for p in fp32.detect(f.rgb, f.depth)[:5]]
+        b = [p.box2d for p in int8.detect(f.rgb, f.depth)[:10]]
+        assert a and b
+        twins += int(np.sum(box2d_iou_matrix(a, b).max(axis=1) >= 0.8))
+        total += len(a)
+    assert twins >= 0.8 * total  # int8 finds (nearly) the same top boxes, not bit-equal ones
+
+
+def test_without_onnxruntime_the_float32_network_runs(monkeypatch):
+    import shape_detector.model.onnx_backend as backend
+
+    monkeypatch.setattr(backend, "ort_available", lambda: False)
+    assert model_file(DEFAULT_MODEL) == DEFAULT_MODEL  # OpenCV DNN runs the float32 graph
+
+
+def test_a_stale_int8_network_is_not_run(tmp_path):
+    import shutil
+
+    src = tmp_path / "p.onnx"
+    shutil.copyfile(DEFAULT_MODEL, src)
+    shutil.copyfile(int8_path(DEFAULT_MODEL), int8_path(src))
+    meta = json.loads(Path(str(int8_path(DEFAULT_MODEL)) + ".json").read_text())
+    Path(str(int8_path(src)) + ".json").write_text(json.dumps({**meta, "source_sha256": "0" * 64}))
+    with pytest.warns(UserWarning, match="int8-only"):
+        assert model_file(src) == src
+    Path(str(int8_path(src)) + ".json").write_text(json.dumps(meta))
+    assert model_file(src) == int8_path(src)  # a copy of the same network: its int8 version runs

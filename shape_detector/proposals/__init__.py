@@ -49,8 +49,9 @@ class Proposal:
 
 def get_proposer(name: str, **kw: Any):
     """A proposer by name: 'geometric' (``config=`` or config fields as keywords),
-    'learned' (``model_path=``, ``max_proposals=``, ``min_score=``), 'hybrid' (``model_path=``
-    of the learned network, ``match_iou=``, ``keep_unmatched=``, ``unmatched_scale=``) or
+    'learned' (``model_path=``, ``max_proposals=``, ``min_score=``, ``precision=``), 'hybrid'
+    (``model_path=`` and ``precision=`` of the learned network, ``match_iou=``,
+    ``keep_unmatched=``, ``unmatched_scale=``) or
     'onnx_yolo' (``model_path=``, ``input_size=``, ``conf=``, ``nms=``)."""
     if name == "geometric":
         from .geometric import GeometricConfig, GeometricProposer
@@ -70,7 +71,8 @@ def get_proposer(name: str, **kw: Any):
         from .hybrid import HybridProposer
         from .learned import LearnedProposer
 
-        return HybridProposer(LearnedProposer(model_path=kw.pop("model_path", None)), GeometricProposer(), **kw)
+        learned = LearnedProposer(model_path=kw.pop("model_path", None), precision=kw.pop("precision", "auto"))
+        return HybridProposer(learned, GeometricProposer(), **kw)
     if name in ("onnx_yolo", "onnx", "yolo"):
         from .onnx_yolo import OnnxYoloProposer
 

@@ -7,13 +7,15 @@ width and height of the box (:func:`decode`). It is class-agnostic: the proposal
 classifier names the class, as for the geometric proposals. The network is trained on the
 generator's frames (``shape-detector train-proposer``, :mod:`shape_detector.training.train_proposer`)
 and shipped as an ONNX file, run with ONNX Runtime where installed, else OpenCV DNN, so
-neither needs torch.
+neither needs torch. Beside it lies its int8 version (:mod:`.learned_int8`), which ONNX
+Runtime runs under ``precision`` ``auto`` and ``int8`` (:func:`model_file`).
 
 Boxes are ``(x1, y1, x2, y2)`` pixel edges of the full-size image.
 """
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import cv2
@@ -36,7 +38,8 @@ def prepare_input(rgb: np.ndarray, depth: np.ndarray) -> np.ndarray:
     (metres; 0 / NaN invalid) as ``d / 4 - 1`` (0 where invalid) and the valid mask."""
     w, h = INPUT_SIZE
     c = cv2.resize(np.asarray(rgb), (w, h), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0 - 0.5
-    d = cv2.resize(np.nan_to_num(np.asarray(depth, dtype=np.float32)), (w, h), interpolation=cv2.INTER_NEAREST)
+    # nearest-neighbour sampling copies values, so invalid ones can be zeroed after it, on 1/16 of the pixels
+    d = np.nan_to_num(cv2.resize(np.asarray(depth, dtype=np.float32), (w, h), interpolation=cv2.INTER_NEAREST))
     valid = (d > 0.05).astype(np.float32)
     dn = np.where(valid > 0, d / DEPTH_SCALE - 1.0, 0.0).astype(np.float32)
     return np.concatenate([c.transpose(2, 0, 1), dn[None], valid[None]], axis=0)
@@ -66,6 +69,22 @@ def decode(heatmap: np.ndarray, reg: np.ndarray, width: int, height: int, k: int
             if c - a >= 1.0 and d - b >= 1.0]
 
 
+def model_file(path: Path, precision: str = "auto") -> Path:
+    """The file to run for the network ``path``: under ``precision`` ``auto`` or ``int8``, its
+    int8 version (:func:`~.learned_int8.int8_path`) where that exists, was built from this very
+    file and ONNX Runtime is installed; else ``path``."""
+    from ..model.onnx_backend import ort_available
+    from .learned_int8 import int8_path, int8_source_matches
+
+    q = int8_path(path)
+    if precision in ("auto", "int8") and q.is_file() and ort_available():
+        if int8_source_matches(q, path):
+            return q
+        warnings.warn(f"{q.name} was not built from {path.name} (its provenance names another file): running "
+                      "the float32 network; rebuild it with shape-detector train-proposer --int8-only", stacklevel=3)
+    return path
+
+
 class _Runner:
     """The ONNX graph (``input`` (B,5,H,W) -> ``heatmap`` (B,1,h,w), ``reg`` (B,4,h,w)) in
     ONNX Runtime, else OpenCV DNN."""
@@ -89,7 +108,8 @@ class _Runner:
 class LearnedProposer:
     """Class-agnostic proposals from the learned network (``model_path``: an ONNX file from
     ``shape-detector train-proposer``; default the shipped one); ``max_proposals`` best
-    centres scoring at least ``min_score``.
+    centres scoring at least ``min_score``; ``precision``: ``auto`` / ``int8`` run the int8
+    version where there is one (:func:`model_file`), ``fp32`` the file itself.
 
     Scores are mapped onto ``score_range``: the proposal classifier, which takes a
     proposal's score as one of its inputs, was trained on the geometric proposer's, which
@@ -97,10 +117,12 @@ class LearnedProposer:
     """
 
     def __init__(self, model_path: str | Path | None = None, max_proposals: int = 20, min_score: float = 0.05,
-                 score_range: tuple[float, float] = (0.75, 1.0), num_threads: int = 1) -> None:
+                 score_range: tuple[float, float] = (0.75, 1.0), num_threads: int = 1,
+                 precision: str = "auto") -> None:
         path = Path(model_path) if model_path else DEFAULT_MODEL
         if not path.is_file():
             raise FileNotFoundError(f"no learned proposer model at {path} (shape-detector train-proposer writes one)")
+        path = model_file(path, precision)
         self.path = path
         self.max_proposals = int(max_proposals)
         self.min_score = float(min_score)

@@ -2,14 +2,16 @@
 
 Example (what ``make weights`` runs)::
 
-    shape-detector train-proposer --data data/train --out shape_detector/weights/proposer2d.onnx
+    shape-detector train-proposer --data data/train data/extra --out shape_detector/weights/proposer2d.onnx --epochs 20
 
 Targets are CenterNet's: per object with at least ``--min-visible`` of it in view, a Gaussian
 peak at its 2D box centre on the output grid (spread a sixth of the box per axis), and at
 that cell the sub-cell offset and the log box size; focal loss on the heatmap, L1 on the
 regression. Augmentation: horizontal flips and colour gain / offset. One-cycle AdamW.
 Writes the ONNX graph (``--out``) and beside it ``<out>.json``: the provenance
-(:mod:`.provenance`: commit, data, settings, losses, sha256 of the graph).
+(:mod:`.provenance`: commit, data, settings, losses, sha256 of the graph); then its int8
+version (:mod:`~shape_detector.proposals.learned_int8`, calibrated on the first frames of the
+first ``--data``), which ``--int8-only`` rebuilds alone from an existing graph.
 """
 
 from __future__ import annotations
@@ -37,6 +39,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
                    help="objects with a smaller visible share are not targets (default 0.1)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=2, help="torch threads (default 2)")
+    p.add_argument("--int8-only", action="store_true",
+                   help="do not train: write the int8 version of the existing --out network, calibrated on "
+                        f"the first {CALIBRATION_FRAMES} frames of --data")
 
 
 def targets(boxes: list[tuple[float, float, float, float]], width: int, height: int,
@@ -72,6 +77,22 @@ def focal_loss(logits: Any, gt: Any) -> Any:
     pos_loss = torch.log(p) * (1 - p) ** 2 * pos
     neg_loss = torch.log(1 - p) * p ** 2 * (1 - gt) ** 4 * (1 - pos)
     return -(pos_loss.sum() + neg_loss.sum()) / pos.sum().clamp(min=1)
+
+
+#: frames of the training data the int8 version is calibrated on
+CALIBRATION_FRAMES = 64
+
+
+def write_int8(out: Path, x: np.ndarray, data: list[Path]) -> Path:
+    """The int8 version of the network ``out`` beside it, calibrated on the first
+    :data:`CALIBRATION_FRAMES` inputs of ``x``; its provenance names ``data``."""
+    from ..proposals.learned_int8 import quantize
+    from .provenance import dataset_identity
+
+    path = quantize(out, x[:CALIBRATION_FRAMES], data=[dataset_identity(d) for d in data],
+                    command="shape-detector train-proposer " + " ".join(sys.argv[2:]))
+    print(f"train-proposer: wrote {path} ({path.stat().st_size} bytes)")
+    return path
 
 
 def load_frames(dirs: list[Path], max_frames: int | None, min_visible: float) -> tuple[np.ndarray, list]:
@@ -171,11 +192,19 @@ def main(args: argparse.Namespace) -> int:
         return 2
     torch.set_num_threads(max(1, args.threads))
     t0 = time.time()
+    if args.int8_only and not args.out.is_file():
+        print(f"train-proposer: --int8-only needs an existing network at --out ({args.out})", file=sys.stderr)
+        return 2
+    limit = CALIBRATION_FRAMES if args.int8_only else args.max_frames
     try:
-        x, frames = load_frames(list(args.data), args.max_frames, args.min_visible)
+        x, frames = load_frames(list(args.data)[:1] if args.int8_only else list(args.data), limit,
+                                args.min_visible)
     except ValueError as e:
         print(f"train-proposer: {e}", file=sys.stderr)
         return 2
+    if args.int8_only:
+        write_int8(args.out, x, list(args.data)[:1])
+        return 0
     print(f"train-proposer: {len(x)} frames, {sum(len(b) for b, _, _ in frames)} boxes", flush=True)
     net, losses = train(x, frames, args.epochs, args.batch_size, args.lr, args.seed,
                         log=lambda s: print(s, flush=True))
@@ -187,6 +216,7 @@ def main(args: argparse.Namespace) -> int:
                            minutes=(time.time() - t0) / 60.0, sha256=sha256_file(args.out),
                            command="shape-detector train-proposer " + " ".join(sys.argv[2:]))
     Path(str(args.out) + ".json").write_text(json.dumps(prov, indent=2) + "\n")
+    write_int8(args.out, x, list(args.data)[:1])
     print(f"train-proposer: wrote {args.out} ({args.out.stat().st_size} bytes) in {(time.time() - t0) / 60:.1f} min")
     return 0
 
