@@ -90,10 +90,14 @@ def clearance(grid: NavGrid, unknown: str = "interior") -> tuple[np.ndarray, np.
     blocked cell: its centre's distance minus half a cell, since an obstacle may reach up to
     the edge of the cells it marks (inf everywhere when nothing is blocked)."""
     free, _ = walkable(grid, unknown)
+    return free, _distance(free, float(grid.resolution))
+
+
+def _distance(free: np.ndarray, res: float) -> np.ndarray:
+    """:func:`clearance`'s distances for a walkable mask with cells of ``res`` m."""
     if free.all():
-        return free, np.full(free.shape, np.inf)
-    res = float(grid.resolution)
-    return free, ndimage.distance_transform_edt(free) * res - 0.5 * res
+        return np.full(free.shape, np.inf)
+    return ndimage.distance_transform_edt(free) * res - 0.5 * res
 
 
 def traversable(grid: NavGrid, agent_radius: float, unknown: str = "interior") -> np.ndarray:
@@ -156,13 +160,11 @@ def _center(grid: NavGrid, rc: np.ndarray) -> np.ndarray:
 
 
 def _snap(g: CellGraph, rc: np.ndarray, max_cells: float) -> np.ndarray | None:
-    """The traversable cell nearest to ``rc`` within ``max_cells`` (row, col), or None: a
-    cell with the full clearance where there is one in reach, else any node of the graph."""
+    """``rc`` (row, col) where it is a node of the graph, else the nearest node within
+    ``max_cells``, or None: a cell with the full clearance where there is one in reach."""
     H, W = g.mask.shape
-    inside = 0 <= rc[0] < H and 0 <= rc[1] < W
-    for mask in ((g.mask,) if g.preferred is None else (g.preferred, g.mask)):
-        if inside and mask[rc[0], rc[1]]:
-            return rc
+    if 0 <= rc[0] < H and 0 <= rc[1] < W and g.mask[rc[0], rc[1]]:
+        return rc
     if len(g.cells) == 0:
         return None
     d = np.hypot(*(g.cells - rc).T)
@@ -267,13 +269,16 @@ def nav_graph(grid: NavGrid, agent_radius: float, unknown: str = "interior", bas
     the obstacles of ``base`` (the grid without margins; default ``grid``)."""
     if not (np.isfinite(squeeze) and squeeze >= 0.0):
         raise ValueError(f"squeeze={squeeze} must be finite and >= 0 (metres)")
-    free, dist = clearance(grid, unknown)
+    free, cost = walkable(grid, unknown)
+    dist = _distance(free, float(grid.resolution))
     preferred = free & (dist > float(agent_radius))
-    allowed, cost_grid = preferred, grid
+    allowed = preferred
     if squeeze > 0.0:
-        cost_grid = grid if base is None else base
-        allowed = preferred | traversable(cost_grid, max(float(agent_radius) - squeeze, 0.0), unknown)
-    _, cost = walkable(cost_grid, unknown)
+        if base is not None and base is not grid:  # the margins left out
+            free, cost = walkable(base, unknown)
+            allowed = preferred | (free & (_distance(free, float(base.resolution)) > agent_radius - squeeze))
+        else:
+            allowed = preferred | (free & (dist > agent_radius - squeeze))
     cost = np.where(preferred, cost, SQUEEZE_COST * cost)
     if COMFORT > 0:
         band = preferred & (dist <= agent_radius + COMFORT)

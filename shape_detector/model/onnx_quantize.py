@@ -31,6 +31,8 @@ import logging
 import os
 import shutil
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -81,6 +83,19 @@ def int8_nodes(model: Any) -> list[str]:
     return out
 
 
+@contextmanager
+def quiet_quantiser() -> Iterator[None]:
+    """Silence onnxruntime's quantiser (its warnings and "consider pre-processing" notices)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        level = logging.getLogger().level
+        logging.getLogger().setLevel(logging.ERROR)
+        try:
+            yield
+        finally:
+            logging.getLogger().setLevel(level)
+
+
 def quantize_graph(src: str | Path, dst: str | Path) -> int:
     """Write the int8 version of the ONNX graph ``src`` to ``dst``; returns how many matrix
     products were quantised. ImportError without the ``onnx`` package."""
@@ -94,15 +109,9 @@ def quantize_graph(src: str | Path, dst: str | Path) -> int:
         shutil.copyfile(src, tmp)
         os.replace(tmp, dst)
         return 0
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        level = logging.getLogger().level
-        logging.getLogger().setLevel(logging.ERROR)  # the quantiser's "consider pre-processing" notice
-        try:
-            quantize_dynamic(str(src), str(tmp), weight_type=QuantType.QInt8, per_channel=True, reduce_range=True,
-                             nodes_to_quantize=nodes, op_types_to_quantize=["MatMul"])
-        finally:
-            logging.getLogger().setLevel(level)
+    with quiet_quantiser():
+        quantize_dynamic(str(src), str(tmp), weight_type=QuantType.QInt8, per_channel=True, reduce_range=True,
+                         nodes_to_quantize=nodes, op_types_to_quantize=["MatMul"])
     os.replace(tmp, dst)
     return len(nodes)
 

@@ -11,10 +11,8 @@ Measured speed and recall: docs/model_card.md.
 from __future__ import annotations
 
 import json
-import logging
 import os
 import tempfile
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -67,24 +65,19 @@ def quantize(source: str | Path, inputs: np.ndarray, dst: str | Path | None = No
     from onnxruntime.quantization.shape_inference import quant_pre_process
 
     from ..digests import sha256_file
+    from ..model.onnx_quantize import quiet_quantiser
 
     source = Path(source)
     dst = int8_path(source) if dst is None else Path(dst)
     if len(inputs) == 0:
         raise ValueError("quantize: no calibration inputs")
-    with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        level = logging.getLogger().level
-        logging.getLogger().setLevel(logging.ERROR)  # the quantiser's notices
-        try:
-            pre = Path(tmp) / "pre.onnx"
-            quant_pre_process(str(source), str(pre))
-            out = Path(tmp) / "int8.onnx"
-            quantize_static(str(pre), str(out), _Inputs(inputs), quant_format=QuantFormat.QDQ,
-                            activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True,
-                            reduce_range=True, calibrate_method=CalibrationMethod.MinMax)
-        finally:
-            logging.getLogger().setLevel(level)
+    with tempfile.TemporaryDirectory() as tmp, quiet_quantiser():
+        pre = Path(tmp) / "pre.onnx"
+        quant_pre_process(str(source), str(pre))
+        out = Path(tmp) / "int8.onnx"
+        quantize_static(str(pre), str(out), _Inputs(inputs), quant_format=QuantFormat.QDQ,
+                        activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True,
+                        reduce_range=True, calibrate_method=CalibrationMethod.MinMax)
         tmp_dst = dst.with_name(dst.name + f".{os.getpid()}.tmp")
         tmp_dst.write_bytes(out.read_bytes())
         os.replace(tmp_dst, dst)

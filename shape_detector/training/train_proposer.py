@@ -181,6 +181,7 @@ def main(args: argparse.Namespace) -> int:
     import torch
 
     from ..digests import sha256_file
+    from ..proposals.learned_int8 import provenance_path
     from .provenance import dataset_identity, make_provenance
 
     for d in args.data:
@@ -215,7 +216,7 @@ def main(args: argparse.Namespace) -> int:
                            metrics={"final_loss": losses[-1]}, settings=settings, losses=losses,
                            minutes=(time.time() - t0) / 60.0, sha256=sha256_file(args.out),
                            command="shape-detector train-proposer " + " ".join(sys.argv[2:]))
-    Path(str(args.out) + ".json").write_text(json.dumps(prov, indent=2) + "\n")
+    provenance_path(args.out).write_text(json.dumps(prov, indent=2) + "\n")
     write_int8(args.out, x, list(args.data)[:1])
     print(f"train-proposer: wrote {args.out} ({args.out.stat().st_size} bytes) in {(time.time() - t0) / 60:.1f} min")
     return 0
