@@ -1,6 +1,6 @@
 """Golden detections: the accurate preset's output on the sample bag and 50 validation frames.
 
-Recorded before a refactor (``python -m test.golden --write``), compared after it by
+Recorded before a refactor and after new weights (``python test/golden.py --write``), compared after it by
 ``test_golden.py`` within tolerance: a move of code must not move a box.
 """
 
