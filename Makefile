@@ -61,21 +61,18 @@ $(DATA)/train/index.json: | $(STAMP)
 	$(SD) synth dataset --out $(DATA)/train --frames 3000 --seed 1 --workers 2 --rgb-format jpg --frames-per-shard 150
 $(DATA)/val/index.json: | $(STAMP)
 	$(SD) synth dataset --out $(DATA)/val --frames 200 --seed 2 --workers 2 --rgb-format jpg --frames-per-shard 100
-$(DATA)/extra/index.json: | $(STAMP)
-	$(SD) synth dataset --out $(DATA)/extra --frames 3000 --seed 6 --workers 2 --rgb-format jpg --frames-per-shard 150
-$(DATA)/extra2/index.json: | $(STAMP)
-	$(SD) synth dataset --out $(DATA)/extra2 --frames 3000 --seed 7 --workers 2 --rgb-format jpg --frames-per-shard 150
 $(DATA)/test/index.json: | $(STAMP)
 	$(SD) synth dataset --out $(DATA)/test --frames 250 --seed 3 --workers 2 --rgb-format jpg --frames-per-shard 125
 
 # The shipped weights: one recipe (shape_detector/training/recipes/shipped.json) lists every
 # phase (network stages 1 to 4i, then the proposal classifier); each phase resumes from its
 # checkpoint and is skipped once finished, so an interrupted `make weights` continues where it
-# stopped. --export copies the phases the recipe exports into shape_detector/weights/. See
+# stopped. The recipe generates the data sets it names (recipes/base.json) where they are
+# missing. --export copies the phases the recipe exports into shape_detector/weights/. See
 # docs/training.md (phases, provenance, several processes or GPUs with torchrun).
 RECIPE ?= shipped
 RUNS   ?= runs/shipped
-weights: $(DATA)/train/index.json $(DATA)/val/index.json $(DATA)/extra/index.json $(DATA)/extra2/index.json
+weights: | $(STAMP)
 	$(SD) train --recipe $(RECIPE) --data-root $(DATA) --out $(RUNS) --device cpu --export shape_detector/weights
 	$(SD) train-proposer --data $(DATA)/train $(DATA)/extra --out shape_detector/weights/proposer2d.onnx --epochs 20
 

@@ -6,8 +6,8 @@
 * ``report.md`` -- per-class AP at each IoU threshold + mAP; Table-4.1-style box errors
   per class; shape IoU / surface distance per class (camera and object frame); timing;
 * ``report.json`` -- the results made JSON-safe by :func:`to_jsonable` (NaN -> null);
-* ``pr_curves_<thr>.png`` -- per-class precision/recall curves at each threshold
-  (``pr_curves.png`` is the one at 0.25, or the first threshold);
+* ``pr_curves.png`` -- per-class precision/recall curves at 0.25 (or the first threshold),
+  ``pr_curves_<thr>.png`` at each other threshold;
 * ``ap_per_class.png`` -- bar chart of AP per class at each threshold.
 
 No matplotlib: the plots are drawn on numpy canvases with OpenCV.
@@ -301,15 +301,15 @@ def write_report(results: Mapping[str, Any], out_dir: str | Path, title: str = "
 
     if det is not None and det.get("ap"):
         keys = list(det["ap"])
+        main_key = "0.25" if "0.25" in keys else keys[0]
         for k in keys:
             img = draw_pr_curves(det.get("precision", {}).get(k, {}), det.get("recall", {}).get(k, {}),
                                  det["ap"][k], title=f"{title}: PR @ 3D IoU {k}")
-            p = out / f"pr_curves_{k}.png"
+            # the main threshold's plot is written once, under the name the markdown links
+            p = out / ("pr_curves.png" if k == main_key else f"pr_curves_{k}.png")
             cv2.imwrite(str(p), img)
             paths[f"pr_curves_{k}"] = p
-        main_key = "0.25" if "0.25" in keys else keys[0]
-        paths["pr_curves"] = out / "pr_curves.png"
-        cv2.imwrite(str(paths["pr_curves"]), cv2.imread(str(paths[f"pr_curves_{main_key}"])))
+        paths["pr_curves"] = paths[f"pr_curves_{main_key}"]
         bars = draw_bar_chart({f"AP@{k}": det["ap"][k] for k in keys}, classes, title=f"{title}: AP per class")
         paths["ap_bar"] = out / "ap_per_class.png"
         cv2.imwrite(str(paths["ap_bar"]), bars)
