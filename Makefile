@@ -74,7 +74,7 @@ RECIPE ?= shipped
 RUNS   ?= runs/shipped
 weights: | $(STAMP)
 	$(SD) train --recipe $(RECIPE) --data-root $(DATA) --out $(RUNS) --device cpu --export shape_detector/weights
-	$(SD) train-proposer --data $(DATA)/train $(DATA)/extra --out shape_detector/weights/proposer2d.onnx --epochs 20
+	$(SD) train-proposer --data $(DATA)/train $(DATA)/extra $(DATA)/extra2 --out shape_detector/weights/proposer2d.onnx --epochs 30
 
 evaluate: $(DATA)/test/index.json
 	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 250 --min-visible 0.1 --out docs/eval/gt_boxes

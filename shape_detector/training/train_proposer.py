@@ -2,7 +2,7 @@
 
 Example (what ``make weights`` runs)::
 
-    shape-detector train-proposer --data data/train data/extra --out shape_detector/weights/proposer2d.onnx --epochs 20
+    shape-detector train-proposer --data data/train data/extra data/extra2 --out shape_detector/weights/proposer2d.onnx --epochs 30
 
 Targets are CenterNet's: per object with at least ``--min-visible`` of it in view, a Gaussian
 peak at its 2D box centre on the output grid (spread a sixth of the box per axis), and at
