@@ -40,7 +40,7 @@ class DetectorConfig:
                                    "each frame / the detections2d topic) or onnx (a YOLO ONNX file, proposal_model)",
                                    choices=PROPOSAL_SOURCES)
     proposal_model: str = setting("", "YOLOv5/v8 ONNX file for proposal_source onnx (COCO classes mapped to ours); "
-                                  "for learned, another network from train-proposer (empty = the packaged one)")
+                                  "for learned or hybrid, another network from train-proposer (empty = the packaged one)")
     score_threshold: float = setting(0.3, "minimum score of a published object", range=(0.0, 1.0), node="dynamic")
     max_objects: int = setting(10, "built-in proposals (frustums) per frame, best first: the speed knob",
                                range=(1, 1000), node="dynamic")
@@ -94,9 +94,9 @@ class DetectorConfig:
 #: preset name -> the changes it makes to the defaults
 PRESETS: dict[str, dict[str, Any]] = {
     "realtime": {},
-    "accurate": {"max_objects": 25, "workers": 2, "precision": "fp32", "mirror_tta": "given", "refine_nms": False},
+    "accurate": {"max_objects": 25, "workers": 2, "precision": "fp32", "mirror_tta": "given", "refine_nms": False,
+                 "proposal_source": "hybrid"},
 }
-
 
 
 def resolved_workers(workers: int, pipelined: bool = False) -> int:

@@ -126,6 +126,25 @@ def test_get_proposer_and_evaluate():
     assert res["up_err_median_deg"] < 1.0 and res["proposals_per_frame"] <= 10
 
 
+def test_evaluate_keeps_the_best_k_and_counts_each_threshold_pair():
+    frame = toy_scene([("table", [box_part(0.0, 3.0, 1.2, 0.8, 0.75)])], up=up_from_pitch_roll(12.0, 2.0), seed=8)
+    (obj,) = frame.objects
+    x1, y1, x2, y2 = obj.box2d
+    shifted = (x1 + 0.1 * (x2 - x1), y1, x2 + 0.1 * (x2 - x1), y2)  # 2D IoU 0.82 with the object
+    geometric = get_proposer("geometric", stride=4)
+
+    def proposer(depth, K, up=None, rgb=None):
+        grav, _ = geometric(depth, K, up=up, rgb=rgb)
+        return grav, [Proposal(shifted, None, 0.4), Proposal((0, 0, 20, 20), None, 0.9)]
+
+    pairs = [(0.0, 0.5), (0.0, 0.9)]
+    one = evaluate_proposals([frame], proposer=proposer, top_k=1, recall_at=pairs)
+    two = evaluate_proposals([frame], proposer=proposer, top_k=2, recall_at=pairs)
+    assert one["recall"] == 0.0 and one["proposals_per_frame"] == 1  # the better-scored box misses
+    assert two["recall"] == 1.0
+    assert two["recall_table"] == {"visible>=0 iou>=0.5": [1.0, 1], "visible>=0 iou>=0.9": [0.0, 1]}
+
+
 def test_rank_features_are_the_features_and_their_quadratic_terms():
     from shape_detector.proposals.geometric import KINDS, _RANK_W, rank_features
 

@@ -7,7 +7,10 @@ number of proposals per frame, the angle between estimated and true ``up`` (medi
 p90, degrees) and the time per frame.
 
 ``python -m shape_detector.proposals.evaluate --frames 100 --seed 70000`` prints the
-numbers; ``--fit-ranker`` fits the proposals' ranking weights instead.
+numbers; ``--source learned|hybrid`` measures the other built-in sources, ``--top-k 10`` keeps
+the best 10 per frame as the detector's ``max_objects`` does, ``--min-visible 0.1 0.3 --iou 0.5
+0.7`` adds a recall per pair of thresholds; ``--fit-ranker`` fits the proposals' ranking weights
+instead.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -43,8 +46,14 @@ def evaluate_proposals(
     min_visible: float = 0.3,
     iou_thr: float = 0.5,
     verbose: bool = False,
+    top_k: int | None = None,
+    recall_at: Sequence[tuple[float, float]] = (),
 ) -> dict:
-    """Recall / proposals per frame / up error / time of ``proposer`` (default geometric) on ``frames``."""
+    """Recall / proposals per frame / up error / time of ``proposer`` (default geometric) on ``frames``.
+
+    ``top_k``: score only the ``top_k`` best-scored proposals per frame (the detector's
+    ``max_objects``). ``recall_at``: extra (min visible fraction, 2D IoU) pairs, reported as
+    ``recall_table`` ("visible>=V iou>=T" -> [recall, objects])."""
     if proposer is None:
         from .geometric import GeometricProposer
 
@@ -54,10 +63,22 @@ def evaluate_proposals(
     per_class: dict[str, list[int]] = {}
     sources: dict[str, int] = {}
     misses = []
+    table: dict[tuple[float, float], list[int]] = {(float(v), float(t)): [0, 0] for v, t in recall_at}
     for fi, f in enumerate(frames):
         t0 = time.perf_counter()
         grav, props = proposer(f.depth, f.K, up=None, rgb=f.rgb)
         times.append(1e3 * (time.perf_counter() - t0))
+        if top_k is not None:
+            props = sorted(props, key=lambda p: -p.score)[:top_k]
+        if table and f.objects:
+            pb_all = np.array([p.box2d for p in props], np.float64).reshape(-1, 4)
+            gb_all = np.array([o.box2d for o in f.objects], np.float64)
+            best_all = box_iou(gb_all, pb_all).max(axis=1) if len(pb_all) else np.zeros(len(gb_all))
+            for (v, t), count in table.items():
+                for o, b in zip(f.objects, best_all):
+                    if o.visible_fraction >= v:
+                        count[0] += int(b >= t)
+                        count[1] += 1
         nprops.append(len(props))
         sources[grav.source] = sources.get(grav.source, 0) + 1
         confs.append(grav.confidence)
@@ -92,6 +113,9 @@ def evaluate_proposals(
         "ms_median": float(np.median(times)) if times else 0.0,
         "recall_per_class": {k: v[0] / max(v[1], 1) for k, v in sorted(per_class.items())},
     }
+    if table:
+        res["recall_table"] = {f"visible>={v:g} iou>={t:g}": [c[0] / max(c[1], 1), c[1]]
+                               for (v, t), c in table.items()}
     if verbose:
         res["misses"] = misses
     return res
@@ -151,8 +175,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-rgb", action="store_true", help="depth only (no colour edges)")
     p.add_argument("--fit-ranker", action="store_true", help="fit and print the ranking weights instead")
     p.add_argument("--data", default=None, help="use the first --frames frames of this dataset instead of generating")
+    p.add_argument("--source", choices=("geometric", "learned", "hybrid"), default="geometric",
+                   help="the built-in proposal source to measure")
+    p.add_argument("--model", default=None, help="learned / hybrid: the network's ONNX file (default the packaged one)")
+    p.add_argument("--precision", choices=("auto", "fp32", "int8"), default="auto",
+                   help="learned / hybrid: auto and int8 run the int8 file where there is one")
+    p.add_argument("--top-k", type=int, default=None, help="score only the best K proposals per frame")
+    p.add_argument("--min-visible", type=float, nargs="+", default=[0.3],
+                   help="visible fractions of the objects to count (the first one gives 'recall')")
+    p.add_argument("--iou", type=float, nargs="+", default=[0.5], help="2D IoU thresholds (the first one gives 'recall')")
     p.add_argument("--verbose", action="store_true")
     args = p.parse_args(argv)
+    if args.top_k is not None and args.top_k < 1:
+        p.error("--top-k must be at least 1")
+    if args.no_rgb and args.source != "geometric":
+        p.error("--no-rgb is for the geometric source (the learned network needs colour)")
     from ..synth.generate import generate_frame
 
     if args.data:
@@ -166,6 +203,10 @@ def main(argv: list[str] | None = None) -> int:
         print("_RANK_W = [" + ", ".join(f"{v:.4f}" for v in w) + "]")
         return 0
     proposer = None
+    if args.source != "geometric":
+        from . import get_proposer
+
+        proposer = get_proposer(args.source, model_path=args.model, precision=args.precision)
     if args.no_rgb:
         from .geometric import GeometricProposer
 
@@ -174,7 +215,9 @@ def main(argv: list[str] | None = None) -> int:
         def proposer(depth, K, up=None, rgb=None):
             return geo(depth, K, up=up)
 
-    res = evaluate_proposals(frames, proposer=proposer, verbose=args.verbose)
+    pairs = list(itertools.product(args.min_visible, args.iou))
+    res = evaluate_proposals(frames, proposer=proposer, min_visible=args.min_visible[0], iou_thr=args.iou[0],
+                             verbose=args.verbose, top_k=args.top_k, recall_at=pairs if len(pairs) > 1 else ())
     for k, v in res.items():
         print(f"{k}: {v}")
     return 0
