@@ -29,9 +29,13 @@ def main() -> int:
     p.add_argument("root", help="directory with depth/ image/ calib/ label/")
     p.add_argument("--index", type=int, default=1, help="frame index (default 1)")
     p.add_argument("--weights", default=None)
+    p.add_argument("--preset", choices=("realtime", "accurate"), default="realtime")
+    p.add_argument("--proposal-source", choices=("geometric", "learned", "hybrid"), default=None,
+                   help="built-in proposals (default: the preset's)")
     a = p.parse_args()
     fr = load_frame(a.root, a.index)
-    det = ShapeDetector(weights=a.weights, score_threshold=0.0)
+    extra = {"proposal_source": a.proposal_source} if a.proposal_source else {}
+    det = ShapeDetector(preset=a.preset, weights=a.weights, score_threshold=0.0, **extra)
     valid = np.isfinite(fr.depth) & (fr.depth > 0)
     print(f"frame {a.index}: {fr.rgb.shape[1]}x{fr.rgb.shape[0]}, valid depth {valid.mean():.0%}, "
           f"median depth {np.median(fr.depth[valid]):.2f} m, {len(fr.objects)} objects of our classes")
