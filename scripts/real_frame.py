@@ -17,6 +17,8 @@ import numpy as np
 
 from shape_detector import ShapeDetector
 from shape_detector.datasets.sunrgbd import load_frame
+from shape_detector.detector_config import PRESETS
+from shape_detector.proposal_source import names as source_names
 from shape_detector.box_iou import box3d_iou
 
 
@@ -29,8 +31,8 @@ def main() -> int:
     p.add_argument("root", help="directory with depth/ image/ calib/ label/")
     p.add_argument("--index", type=int, default=1, help="frame index (default 1)")
     p.add_argument("--weights", default=None)
-    p.add_argument("--preset", choices=("realtime", "accurate"), default="realtime")
-    p.add_argument("--proposal-source", choices=("geometric", "learned", "hybrid"), default=None,
+    p.add_argument("--preset", choices=sorted(PRESETS), default="realtime")
+    p.add_argument("--proposal-source", choices=[n for n in source_names() if n != "external"], default=None,
                    help="built-in proposals (default: the preset's)")
     a = p.parse_args()
     fr = load_frame(a.root, a.index)

@@ -23,7 +23,10 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from ..box_iou import box2d_iou_matrix
+from ..detector_config import PRECISIONS, make_config
 from ..geometry import normalize
+from ..proposal_source import make_proposer
+from ..proposal_source import names as source_names
 from ..types import Frame
 
 VGA_K = np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
@@ -70,27 +73,23 @@ def evaluate_proposals(
         times.append(1e3 * (time.perf_counter() - t0))
         if top_k is not None:
             props = sorted(props, key=lambda p: -p.score)[:top_k]
-        if table and f.objects:
-            pb_all = np.array([p.box2d for p in props], np.float64).reshape(-1, 4)
-            gb_all = np.array([o.box2d for o in f.objects], np.float64)
-            best_all = box_iou(gb_all, pb_all).max(axis=1) if len(pb_all) else np.zeros(len(gb_all))
-            for (v, t), count in table.items():
-                for o, b in zip(f.objects, best_all):
-                    if o.visible_fraction >= v:
-                        count[0] += int(b >= t)
-                        count[1] += 1
         nprops.append(len(props))
         sources[grav.source] = sources.get(grav.source, 0) + 1
         confs.append(grav.confidence)
         if f.up is not None:
             up_err.append(angle_deg(grav.up, f.up))
-        gts = [o for o in f.objects if o.visible_fraction >= min_visible]
-        if not gts:
+        if not f.objects:
             continue
         pb = np.array([p.box2d for p in props], np.float64).reshape(-1, 4)
-        gb = np.array([o.box2d for o in gts], np.float64)
+        gb = np.array([o.box2d for o in f.objects], np.float64)
         best = box_iou(gb, pb).max(axis=1) if len(pb) else np.zeros(len(gb))
-        for o, b in zip(gts, best):
+        vis = np.array([o.visible_fraction for o in f.objects])
+        for (v, t), count in table.items():
+            count[0] += int(np.sum((vis >= v) & (best >= t)))
+            count[1] += int(np.sum(vis >= v))
+        for o, b, seen in zip(f.objects, best, vis):
+            if seen < min_visible:
+                continue
             ok = int(b >= iou_thr)
             hits += ok
             total += 1
@@ -175,10 +174,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-rgb", action="store_true", help="depth only (no colour edges)")
     p.add_argument("--fit-ranker", action="store_true", help="fit and print the ranking weights instead")
     p.add_argument("--data", default=None, help="use the first --frames frames of this dataset instead of generating")
-    p.add_argument("--source", choices=("geometric", "learned", "hybrid"), default="geometric",
-                   help="the built-in proposal source to measure")
-    p.add_argument("--model", default=None, help="learned / hybrid: the network's ONNX file (default the packaged one)")
-    p.add_argument("--precision", choices=("auto", "fp32", "int8"), default="auto",
+    p.add_argument("--source", choices=[n for n in source_names() if n != "external"], default="geometric",
+                   help="the proposal source to measure (as the detector's proposal_source)")
+    p.add_argument("--model", default="", help="the detector's proposal_model (learned / hybrid: default the packaged one)")
+    p.add_argument("--precision", choices=PRECISIONS, default="auto",
                    help="learned / hybrid: auto and int8 run the int8 file where there is one")
     p.add_argument("--top-k", type=int, default=None, help="score only the best K proposals per frame")
     p.add_argument("--min-visible", type=float, nargs="+", default=[0.3],
@@ -202,22 +201,17 @@ def main(argv: list[str] | None = None) -> int:
         w = fit_ranker(frames)
         print("_RANK_W = [" + ", ".join(f"{v:.4f}" for v in w) + "]")
         return 0
-    proposer = None
-    if args.source != "geometric":
-        from . import get_proposer
-
-        proposer = get_proposer(args.source, model_path=args.model, precision=args.precision)
+    proposer = make_proposer(make_config(proposal_source=args.source, proposal_model=args.model,
+                                         precision=args.precision))
     if args.no_rgb:
-        from .geometric import GeometricProposer
-
-        geo = GeometricProposer()
+        with_rgb = proposer
 
         def proposer(depth, K, up=None, rgb=None):
-            return geo(depth, K, up=up)
+            return with_rgb(depth, K, up=up)
 
-    pairs = list(itertools.product(args.min_visible, args.iou))
     res = evaluate_proposals(frames, proposer=proposer, min_visible=args.min_visible[0], iou_thr=args.iou[0],
-                             verbose=args.verbose, top_k=args.top_k, recall_at=pairs if len(pairs) > 1 else ())
+                             verbose=args.verbose, top_k=args.top_k,
+                             recall_at=list(itertools.product(args.min_visible, args.iou)))
     for k, v in res.items():
         print(f"{k}: {v}")
     return 0
