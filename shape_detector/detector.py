@@ -30,6 +30,17 @@ from .types import Object3D
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "default.pt"
 DEFAULT_CLASSIFIER = Path(__file__).resolve().parent / "weights" / "classifier.pt"
+#: the packaged classifier trained on the hybrid proposer's candidates
+HYBRID_CLASSIFIER = DEFAULT_CLASSIFIER.with_name("classifier_hybrid.pt")
+
+
+def packaged_classifier(proposal_source: str) -> Path:
+    """The packaged proposal classifier for a proposer: the one trained on its candidates
+    (``hybrid``: :data:`HYBRID_CLASSIFIER` where it is packaged), else :data:`DEFAULT_CLASSIFIER`
+    (trained on the geometric proposer's)."""
+    if proposal_source == "hybrid" and HYBRID_CLASSIFIER.is_file():
+        return HYBRID_CLASSIFIER
+    return DEFAULT_CLASSIFIER
 
 
 @dataclass
@@ -110,7 +121,7 @@ def _load_classifier(spec: str | Path | bool, cfg: DetectorConfig):
     precision, tracing and backend, or None."""
     if spec is False or spec is None:
         return None
-    path = DEFAULT_CLASSIFIER if spec is True else Path(spec)
+    path = packaged_classifier(cfg.proposal_source) if spec is True else Path(spec)
     if not path.is_file():
         if spec is True:
             warnings.warn(f"no packaged proposal classifier at {path}; the network's class head decides", stacklevel=3)

@@ -32,7 +32,8 @@ class DetectorConfig:
     backend: str = setting("auto", "inference runtime: auto (ONNX Runtime when installed, else PyTorch), "
                            "onnxruntime or torch", choices=BACKENDS, node="rebuild")
     classifier: str = setting("", "proposal classifier that decides class and score of built-in proposals and of "
-                              "given boxes without a class; empty = the packaged one, 'none' = off, or a file",
+                              "given boxes without a class; empty = the packaged one trained on the proposer's "
+                              "candidates (hybrid: classifier_hybrid.pt, else classifier.pt), 'none' = off, or a file",
                               node="rebuild")
     proposal_source: str = setting("geometric", "2D proposals: geometric (built in, from the depth), learned "
                                    "(built in, a small network on colour and depth), hybrid (both: the network's objects with the "

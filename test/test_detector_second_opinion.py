@@ -122,6 +122,23 @@ def test_classifier_file_loads_and_missing_file_raises(tmp_path, scene):
         ShapeDetector(classifier=tmp_path / "missing.pt")
 
 
+def test_each_builtin_proposer_gets_the_classifier_trained_on_its_candidates(tmp_path, monkeypatch):
+    from shape_detector import detector as det_mod
+
+    assert det_mod.packaged_classifier("geometric") == det_mod.DEFAULT_CLASSIFIER
+    assert det_mod.packaged_classifier("external") == det_mod.DEFAULT_CLASSIFIER
+    hybrid = tmp_path / "classifier_hybrid.pt"
+    monkeypatch.setattr(det_mod, "HYBRID_CLASSIFIER", hybrid)
+    assert det_mod.packaged_classifier("hybrid") == det_mod.DEFAULT_CLASSIFIER  # not packaged: the general one
+    torch.manual_seed(0)
+    save_classifier(ProposalClassifier(ClassifierConfig(widths=(8, 16), fc=(16,))).eval(), hybrid)
+    assert det_mod.packaged_classifier("hybrid") == hybrid
+    assert det_mod.packaged_classifier("learned") == det_mod.DEFAULT_CLASSIFIER
+    det = ShapeDetector(proposal_source="hybrid")
+    assert det.classifier.config.widths == (8, 16)  # the hybrid file, loaded by default
+    assert ShapeDetector(proposal_source="hybrid", classifier="none").classifier is None
+
+
 def test_reclassify_keeps_empty_frustums_at_zero(scene):
     from shape_detector.detector import reclassify
 

@@ -68,6 +68,8 @@ def test_inheritance_merges_dicts_and_replaces_the_rest(tmp_path):
       {"name": "c", "kind": "classifier", "network": "a", "datasets": ["train"], "train": {"epoch": 2}}],
      "unknown classifier training keys"),
     ([{"name": "a", "train_data": ["gt"]}, {"name": "c", "kind": "classifier", "network": "a"}], "no datasets"),
+    ([{"name": "a", "train_data": ["gt"]}, {"name": "c", "kind": "classifier", "network": "a", "datasets": ["train"],
+                                            "proposal_source": "external"}], "proposal_source"),
     ([{"name": "a", "kind": "other", "train_data": ["gt"]}], "kind"),
 ])
 def test_bad_recipes_are_refused_with_one_clear_error(tmp_path, phases, message):
@@ -96,7 +98,7 @@ def test_inheritance_loops_and_missing_files_are_refused(tmp_path):
 def test_shipped_recipe_resolves_by_name_and_exports_the_shipped_files():
     r = rcp.load_recipe("shipped")
     assert r["file"] == "shipped.json" and r == rcp.load_recipe(rcp.RECIPES_DIR / "shipped.json")
-    assert set(r["exports"]) == {"default.pt", "classifier.pt"}
+    assert set(r["exports"]) == {"default.pt", "classifier.pt", "classifier_hybrid.pt"}
     names = [p["name"] for p in r["phases"]]
     assert all(v in names for v in r["exports"].values())
     # every phase's epochs are in the recipe; nothing is a wall-clock budget
@@ -126,8 +128,10 @@ def test_frustum_cache_key_follows_content_not_paths(tmp_path):
     assert frustum_key(src, cfg, None) != frustum_key(moved, cfg, None)
 
 
-#: default.pt was written by the recipe runner; classifier.pt predates recipes (provenance written after)
-@pytest.mark.parametrize(("name", "reconstructed"), [("default.pt", False), ("classifier.pt", True)])
+#: default.pt and classifier_hybrid.pt were written by the recipe runner; classifier.pt predates recipes
+#: (provenance written after)
+@pytest.mark.parametrize(("name", "reconstructed"),
+                         [("default.pt", False), ("classifier.pt", True), ("classifier_hybrid.pt", False)])
 def test_shipped_weights_carry_provenance(name, reconstructed, capsys):
     from shape_detector.training import weights_info as wi
 

@@ -36,6 +36,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=2, help="processes building candidates (default 2)")
     p.add_argument("--proposals", type=int, default=20,
                    help="built-in proposals per frame made candidates, best first (default 20)")
+    p.add_argument("--proposal-source", default="geometric", choices=("geometric", "learned", "hybrid"),
+                   help="built-in proposer whose candidates the classifier learns from (default geometric); "
+                        "the detector picks the classifier trained on its proposer")
     p.add_argument("--epochs", type=int, default=12)
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--lr", type=float, default=1e-3)
@@ -43,9 +46,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads while training (default 2)")
 
 
-def _build(job: tuple[list[str], str | None, int | None, int, str]) -> str:
+def _build(job: tuple[list[str], str | None, int | None, int, str, str]) -> str:
     """One worker: candidates of some shard files -> an .npz (returns its path)."""
-    files, weights, max_frames, proposals, out = job
+    files, weights, max_frames, proposals, out, source = job
     import cv2
     import torch
 
@@ -56,7 +59,7 @@ def _build(job: tuple[list[str], str | None, int | None, int, str]) -> str:
     from .classifier_data import build_candidates
 
     det = ShapeDetector(weights=weights, score_threshold=0.0, workers=1, classifier=False, refine=False,
-                        max_objects=proposals)
+                        max_objects=proposals, proposal_source=source)
     frames = itertools.chain.from_iterable(iter_frames(f) for f in files)
     if max_frames is not None:
         frames = itertools.islice(frames, max_frames)
@@ -68,7 +71,8 @@ def _build(job: tuple[list[str], str | None, int | None, int, str]) -> str:
 
 
 def build_all(
-    data: list[Path], out_dir: Path, weights: Path | None, max_frames: int | None, workers: int, proposals: int = 20
+    data: list[Path], out_dir: Path, weights: Path | None, max_frames: int | None, workers: int, proposals: int = 20,
+    proposal_source: str = "geometric",
 ) -> list[Path]:
     """Candidate files of every shard directory, built by ``workers`` processes (cached)."""
     from ..synth.dataset import shard_paths
@@ -82,7 +86,8 @@ def build_all(
         for g_i, g in enumerate(groups):
             out = out_dir / f"candidates_{d_i}_{g_i}.npz"
             if not out.is_file():
-                jobs.append(([shards[k] for k in g], str(weights) if weights else None, per, proposals, str(out)))
+                jobs.append(([shards[k] for k in g], str(weights) if weights else None, per, proposals, str(out),
+                             proposal_source))
     if jobs:
         print(f"building candidates: {len(jobs)} jobs on {workers} processes", flush=True)
         if workers > 1:
@@ -121,7 +126,8 @@ def main(args: argparse.Namespace) -> int:
             print(f"shape-detector train-classifier: no data directory {str(d)!r}", file=sys.stderr)
             return 2
     t0 = time.time()
-    paths = build_all(args.data, args.out, args.weights, args.max_frames, args.workers, args.proposals)
+    paths = build_all(args.data, args.out, args.weights, args.max_frames, args.workers, args.proposals,
+                      args.proposal_source)
     ds = load_candidates(paths)
     n = len(ds["label"])
     print(f"{n} candidates from {len(paths)} files in {time.time() - t0:.0f} s "

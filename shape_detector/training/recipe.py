@@ -18,8 +18,8 @@ A network phase: ``name``; ``init`` (an earlier phase, or null for a fresh netwo
 ``seed``; ``keep`` ("best": the best validation epoch's weights, or "last"); ``train``
 (TrainConfig fields over ``defaults``: model, epochs, lr, trainable parts, tasks, threads).
 A classifier phase (``"kind": "classifier"``): ``network`` (the phase whose weights propose
-and first-pass the candidates), ``datasets``, ``seed``, ``proposals``, ``workers``, ``train``
-(ClassifierTrainConfig fields). Nothing in a recipe is a wall-clock budget.
+and first-pass the candidates), ``datasets``, ``seed``, ``proposals``, ``proposal_source``
+(the built-in proposer, default ``geometric``), ``workers``, ``train`` (ClassifierTrainConfig fields). Nothing in a recipe is a wall-clock budget.
 """
 
 from __future__ import annotations
@@ -34,7 +34,9 @@ from ..digests import sha256_json
 
 RECIPES_DIR = Path(__file__).resolve().parent / "recipes"
 _PHASE_KEYS = {"name", "kind", "comment", "init", "train_data", "val_data", "seed", "keep", "train",
-               "network", "datasets", "proposals", "workers", "max_frames"}
+               "network", "datasets", "proposals", "proposal_source", "workers", "max_frames"}
+#: built-in proposers a classifier phase may learn from
+_CLASSIFIER_SOURCES = ("geometric", "learned", "hybrid")
 
 
 def deep_merge(base: Any, over: Any) -> Any:
@@ -109,6 +111,8 @@ def check(r: dict[str, Any]) -> None:
             for d in ph["datasets"]:
                 if d not in r["datasets"]:
                     raise ValueError(f"phase {name}: unknown data set {d!r}")
+            if ph.get("proposal_source", "geometric") not in _CLASSIFIER_SOURCES:
+                raise ValueError(f"phase {name}: proposal_source must be one of {_CLASSIFIER_SOURCES}")
             classifier_train_config(r, ph)  # unknown ClassifierTrainConfig keys fail here
         elif ph.get("kind", "network") != "network":
             raise ValueError(f"phase {name}: kind must be 'network' or 'classifier', not {ph['kind']!r}")

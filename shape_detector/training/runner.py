@@ -176,10 +176,15 @@ def _classifier_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_roo
     cfg = classifier_train_config(r, ph)
     train_d = asdict(cfg)
     # the workers split each data set's shards into that many candidate files: part of the key,
-    # so that a cache never mixes two splits
-    cand_key = sha256_json({"network": parents[0]["sha256"], "data": [data_identity(s) for s in srcs],
-                            "proposals": ph.get("proposals", 20), "max_frames": ph.get("max_frames"),
-                            "workers": int(ph.get("workers", 2))})[:16]
+    # so that a cache never mixes two splits; the proposer only when not the default, so that
+    # geometric caches keep their keys
+    source = ph.get("proposal_source", "geometric")
+    cand_id = {"network": parents[0]["sha256"], "data": [data_identity(s) for s in srcs],
+               "proposals": ph.get("proposals", 20), "max_frames": ph.get("max_frames"),
+               "workers": int(ph.get("workers", 2))}
+    if source != "geometric":
+        cand_id["proposal_source"] = source
+    cand_key = sha256_json(cand_id)[:16]
     key = sha256_json({"phase": {k: v for k, v in ph.items() if k != "comment"}, "train": train_d,
                        "candidates": cand_key, "code": PHASE_CODE_VERSION})
     d = out / ph["name"]
@@ -189,7 +194,7 @@ def _classifier_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_roo
     _prepare_phase_dir(d, key, say)
     t0 = time.time()
     paths = build_all(srcs, out / "cache" / f"candidates_{cand_key}", out / parents[0]["file"], ph.get("max_frames"),
-                      int(ph.get("workers", 2)), int(ph.get("proposals", 20)))
+                      int(ph.get("workers", 2)), int(ph.get("proposals", 20)), source)
     prov = make_provenance(ph["name"], recipe=r["file"], recipe_sha256=r["sha256"], parents=parents,
                            data=[{**dataset_identity(s), "path": s.name} for s in srcs], phase_key=key,
                            seed=cfg.seed)
