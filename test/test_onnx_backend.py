@@ -145,6 +145,22 @@ def test_export_onnx_writes_graphs_that_load_and_match_torch(weights, tmp_path):
     np.testing.assert_allclose(got[5], want[5].numpy(), atol=BOX_ATOL_M)  # size (m)
 
 
+def test_export_onnx_takes_the_classifier_of_the_proposer_it_serves(tmp_path):
+    from shape_detector.model.export_cli import classifier_path
+
+    w = tmp_path / "default.pt"
+    assert classifier_path(w, None, "hybrid") is None  # none beside the weights: the frustum graphs alone
+    (tmp_path / "classifier.pt").write_bytes(b"x")
+    assert classifier_path(w, None, "hybrid") == tmp_path / "classifier.pt"
+    (tmp_path / "classifier_hybrid.pt").write_bytes(b"x")
+    assert classifier_path(w, None, "hybrid") == tmp_path / "classifier_hybrid.pt"
+    assert classifier_path(w, None, "geometric") == tmp_path / "classifier.pt"
+    assert classifier_path(w, "none", "hybrid") is None
+    assert classifier_path(w, tmp_path / "classifier.pt", "hybrid") == tmp_path / "classifier.pt"
+    with pytest.raises(FileNotFoundError, match="other.pt"):
+        classifier_path(w, tmp_path / "other.pt")
+
+
 def test_export_onnx_reports_a_missing_weights_file(tmp_path, capsys):
     from shape_detector.model import export_cli
 

@@ -2,7 +2,8 @@
 
 Writes into ``--out``: ``frustum_seg.onnx`` and ``frustum_head.onnx`` (the frustum network's
 first and class-given passes, see :mod:`.onnx_export`), ``classifier.onnx`` (the proposal
-classifier, unless ``--classifier none``) and ``graphs.json``: every graph's inputs and
+classifier, unless ``--classifier none``; by default the one trained on ``--proposal-source``'s
+candidates, as the detector picks it) and ``graphs.json``: every graph's inputs and
 outputs (names, axes: ``B`` batch, ``N`` points), the model configuration, the weights'
 sha256 and the largest difference from PyTorch measured on random inputs. Each graph has a
 dynamic batch axis and is checked in onnxruntime against PyTorch before it is kept. Needs
@@ -23,12 +24,33 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weights", default=None, help="frustum network weights (default: the packaged ones)")
     p.add_argument("--classifier", default=None,
                    help="proposal classifier weights (default: the packaged ones; 'none': skip it)")
+    p.add_argument("--proposal-source", default="geometric", choices=("geometric", "learned", "hybrid"),
+                   help="the built-in proposer the graphs will serve: picks the default classifier "
+                        "(hybrid: classifier_hybrid.pt beside the weights where there is one)")
 
 
-def export_all(out: str | Path, weights: str | Path | None = None, classifier: str | Path | None = None) -> dict:
+def classifier_path(weights: Path, classifier: str | Path | None, proposal_source: str = "geometric") -> Path | None:
+    """The classifier file to export: ``classifier`` when given (None for ``"none"``), else the
+    one beside ``weights`` trained on ``proposal_source``'s candidates (``classifier_hybrid.pt``
+    for hybrid where it exists, else ``classifier.pt``); None when there is none.
+    FileNotFoundError for a given file that is missing."""
+    if str(classifier) == "none":
+        return None
+    if classifier:
+        path = Path(classifier)
+        if not path.is_file():
+            raise FileNotFoundError(f"classifier file {path} not found")
+        return path
+    hybrid = weights.with_name("classifier_hybrid.pt")
+    path = hybrid if proposal_source == "hybrid" and hybrid.is_file() else weights.with_name("classifier.pt")
+    return path if path.is_file() else None
+
+
+def export_all(out: str | Path, weights: str | Path | None = None, classifier: str | Path | None = None,
+               proposal_source: str = "geometric") -> dict:
     """Export the frustum graphs of ``weights`` (None: packaged) and, unless ``classifier`` is
-    ``"none"``, the classifier graph into ``out``; returns the written ``graphs.json``.
-    FileNotFoundError for a missing weights file."""
+    ``"none"``, the classifier graph (:func:`classifier_path`) into ``out``; returns the written
+    ``graphs.json``. FileNotFoundError for a missing weights file."""
     from .classifier import load_classifier
     from .io import load_weights
     from ..digests import sha256_file
@@ -39,13 +61,7 @@ def export_all(out: str | Path, weights: str | Path | None = None, classifier: s
     wpath = Path(weights) if weights else default_weights_path()
     if not wpath.is_file():
         raise FileNotFoundError(f"weights file {wpath} not found")
-    cpath: Path | None = None
-    if str(classifier) != "none":
-        cpath = Path(classifier) if classifier else wpath.with_name("classifier.pt")
-        if not cpath.is_file():
-            if classifier:
-                raise FileNotFoundError(f"classifier file {cpath} not found")
-            cpath = None  # no packaged classifier: the frustum graphs alone
+    cpath = classifier_path(wpath, classifier, proposal_source)  # None: the frustum graphs alone
     model, meta = load_weights(wpath, "cpu")
     export_frustum_graphs(model.eval().fuse_batchnorm(), out, {
         "tasks": meta.get("tasks"), "weights_file": wpath.name, "weights_sha256": sha256_file(wpath),
@@ -55,6 +71,7 @@ def export_all(out: str | Path, weights: str | Path | None = None, classifier: s
     info = json.loads((out / META_FILE).read_text())
     if cpath is not None:
         info["classifier_sha256"] = sha256_file(cpath)
+        info["classifier_file"] = cpath.name
         (out / META_FILE).write_text(json.dumps(info, indent=2, default=str))
     return info
 
@@ -62,7 +79,7 @@ def export_all(out: str | Path, weights: str | Path | None = None, classifier: s
 def main(args: argparse.Namespace) -> int:
     """Run ``export-onnx``; 0 on success, 2 on a missing file or package."""
     try:
-        info = export_all(args.out, args.weights, args.classifier)
+        info = export_all(args.out, args.weights, args.classifier, args.proposal_source)
     except (FileNotFoundError, ImportError) as e:
         print(f"shape-detector export-onnx: {e}", file=sys.stderr)
         return 2
