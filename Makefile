@@ -65,16 +65,19 @@ $(DATA)/test/index.json: | $(STAMP)
 	$(SD) synth dataset --out $(DATA)/test --frames 250 --seed 3 --workers 2 --rgb-format jpg --frames-per-shard 125
 
 # The shipped weights: one recipe (shape_detector/training/recipes/shipped.json) lists every
-# phase (network stages 1 to 4i, then the proposal classifier); each phase resumes from its
+# phase (network stages 1 to 4i, then the proposal classifiers); each phase resumes from its
 # checkpoint and is skipped once finished, so an interrupted `make weights` continues where it
 # stopped. The recipe generates the data sets it names (recipes/base.json) where they are
 # missing. --export copies the phases the recipe exports into shape_detector/weights/. See
 # docs/training.md (phases, provenance, several processes or GPUs with torchrun).
+# The recipe runs again after the 2D proposer's training: the hybrid proposer's classifier
+# (stage 5b) learns from that proposer's candidates, so it retrains only if the proposer changed.
 RECIPE ?= shipped
 RUNS   ?= runs/shipped
 weights: | $(STAMP)
 	$(SD) train --recipe $(RECIPE) --data-root $(DATA) --out $(RUNS) --device cpu --export shape_detector/weights
 	$(SD) train-proposer --data $(DATA)/train $(DATA)/extra $(DATA)/extra2 --out shape_detector/weights/proposer2d.onnx --epochs 30
+	$(SD) train --recipe $(RECIPE) --data-root $(DATA) --out $(RUNS) --device cpu --export shape_detector/weights
 
 evaluate: $(DATA)/test/index.json
 	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 250 --min-visible 0.1 --out docs/eval/gt_boxes

@@ -128,6 +128,24 @@ def test_frustum_cache_key_follows_content_not_paths(tmp_path):
     assert frustum_key(src, cfg, None) != frustum_key(moved, cfg, None)
 
 
+def test_hybrid_classifier_candidates_follow_the_packaged_proposer(tmp_path, monkeypatch):
+    """A learned / hybrid classifier phase's candidates come from the packaged 2D proposer: its
+    files are part of their key, so a retrained proposer retrains the phase."""
+    from shape_detector.proposals import learned
+    from shape_detector.training import runner
+
+    model = tmp_path / "proposer2d.onnx"
+    monkeypatch.setattr(learned, "DEFAULT_MODEL", model)
+    assert runner._proposer_identity() == {"onnx": None, "int8": None}
+    model.write_bytes(b"a")
+    first = runner._proposer_identity()
+    assert first["onnx"] == sha256_file(model) and first["int8"] is None
+    (tmp_path / "proposer2d.int8.onnx").write_bytes(b"b")
+    model.write_bytes(b"c")
+    second = runner._proposer_identity()
+    assert second["onnx"] != first["onnx"] and second["int8"] is not None
+
+
 #: default.pt and classifier_hybrid.pt were written by the recipe runner; classifier.pt predates recipes
 #: (provenance written after)
 @pytest.mark.parametrize(("name", "reconstructed"),

@@ -166,6 +166,16 @@ def run_classifier_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_
         ddp.barrier(env)
 
 
+def _proposer_identity() -> dict[str, str | None]:
+    """sha256 of the packaged learned 2D proposer and of its int8 version (the candidates of a
+    learned or hybrid classifier phase depend on them; None where a file is missing)."""
+    from ..proposals.learned import DEFAULT_MODEL
+    from ..proposals.learned_int8 import int8_path
+
+    return {name: sha256_file(p) if p.is_file() else None
+            for name, p in (("onnx", DEFAULT_MODEL), ("int8", int8_path(DEFAULT_MODEL)))}
+
+
 def _classifier_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_root: Path,
                       say: Callable[[str], None]) -> dict[str, Any]:
     from .classifier_cli import build_all, load_candidates
@@ -184,6 +194,7 @@ def _classifier_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_roo
                "workers": int(ph.get("workers", 2))}
     if source != "geometric":
         cand_id["proposal_source"] = source
+        cand_id["proposer"] = _proposer_identity()
     cand_key = sha256_json(cand_id)[:16]
     key = sha256_json({"phase": {k: v for k, v in ph.items() if k != "comment"}, "train": train_d,
                        "candidates": cand_key, "code": PHASE_CODE_VERSION})
