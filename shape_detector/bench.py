@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .model.config import PRECISIONS
+from .detector_config import BUILTIN_PROPOSAL_SOURCES
 
 TARGETS = ("synth", "network", "proposals", "pipeline", "node")
 #: frames the node's pipeline is timed over (the serial frames repeated): enough for a steady state
@@ -66,7 +67,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gravity", default="estimate", choices=("estimate", "given"),
                    help="pipeline: estimate gravity per frame (default) or give each frame's true up, as a node "
                         "with a camera pose does (up_source auto)")
-    p.add_argument("--proposal-source", default=None, choices=("geometric", "learned", "hybrid"),
+    p.add_argument("--proposal-source", default=None, choices=BUILTIN_PROPOSAL_SOURCES,
                    help="pipeline: built-in 2D proposals (default: the realtime preset's)")
     p.add_argument("--processes", type=int, default=2,
                    help="pipeline: also time the node's pipeline with this many detector processes (0: not)")

@@ -34,13 +34,15 @@ DEFAULT_CLASSIFIER = Path(__file__).resolve().parent / "weights" / "classifier.p
 HYBRID_CLASSIFIER = DEFAULT_CLASSIFIER.with_name("classifier_hybrid.pt")
 
 
-def packaged_classifier(proposal_source: str) -> Path:
-    """The packaged proposal classifier for a proposer: the one trained on its candidates
-    (``hybrid``: :data:`HYBRID_CLASSIFIER` where it is packaged), else :data:`DEFAULT_CLASSIFIER`
-    (trained on the geometric proposer's)."""
-    if proposal_source == "hybrid" and HYBRID_CLASSIFIER.is_file():
-        return HYBRID_CLASSIFIER
-    return DEFAULT_CLASSIFIER
+def packaged_classifier(proposal_source: str, folder: str | Path | None = None) -> Path:
+    """The proposal classifier for a proposer: the one trained on its candidates (``hybrid``:
+    :data:`HYBRID_CLASSIFIER`'s file where there is one), else :data:`DEFAULT_CLASSIFIER`'s
+    (trained on the geometric proposer's). ``folder``: look there instead of the packaged
+    weights (the folder of other weights); the returned file may be missing."""
+    hybrid, general = HYBRID_CLASSIFIER, DEFAULT_CLASSIFIER
+    if folder is not None:
+        hybrid, general = Path(folder) / hybrid.name, Path(folder) / general.name
+    return hybrid if proposal_source == "hybrid" and hybrid.is_file() else general
 
 
 @dataclass

@@ -19,6 +19,8 @@ from typing import Any
 from .settings import Spec, check, coerce, setting, specs
 
 PROPOSAL_SOURCES = ("geometric", "learned", "hybrid", "external", "onnx")
+#: the proposal sources built into the package (no boxes or model file from outside)
+BUILTIN_PROPOSAL_SOURCES = ("geometric", "learned", "hybrid")
 PRECISIONS = ("auto", "fp32", "bf16", "int8")
 BACKENDS = ("auto", "onnxruntime", "torch")
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+import json
 from types import SimpleNamespace
 
 import numpy as np
@@ -207,3 +209,18 @@ def test_classifier_predictor_matches_the_classifier(trace):
     assert fp32.probabilities(p[:0], g[:0]).shape == (0, NUM_CLASSES + 1)
     fp32.warm_up(max_batch=3)
     assert fp32._run.traced == (1 if trace else 0)  # one graph serves every batch size
+
+
+def test_train_classifier_refuses_candidates_built_with_other_settings(tmp_path, capsys):
+    from shape_detector.training import classifier_cli
+
+    parser = argparse.ArgumentParser()
+    classifier_cli.configure_parser(parser)
+    data, out = tmp_path / "data", tmp_path / "run"
+    data.mkdir()
+    out.mkdir()
+    geometric = parser.parse_args(["--data", str(data), "--out", str(out)])
+    (out / "candidates.json").write_text(json.dumps(classifier_cli._candidate_settings(geometric)))
+    hybrid = parser.parse_args(["--data", str(data), "--out", str(out), "--proposal-source", "hybrid"])
+    assert classifier_cli.main(hybrid) == 2
+    assert "other settings" in capsys.readouterr().err

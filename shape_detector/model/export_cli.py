@@ -17,6 +17,8 @@ import json
 import sys
 from pathlib import Path
 
+from ..detector_config import BUILTIN_PROPOSAL_SOURCES
+
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
     """Options of ``export-onnx``."""
@@ -24,15 +26,15 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weights", default=None, help="frustum network weights (default: the packaged ones)")
     p.add_argument("--classifier", default=None,
                    help="proposal classifier weights (default: the packaged ones; 'none': skip it)")
-    p.add_argument("--proposal-source", default="geometric", choices=("geometric", "learned", "hybrid"),
+    p.add_argument("--proposal-source", default="geometric", choices=BUILTIN_PROPOSAL_SOURCES,
                    help="the built-in proposer the graphs will serve: picks the default classifier "
                         "(hybrid: classifier_hybrid.pt beside the weights where there is one)")
 
 
 def classifier_path(weights: Path, classifier: str | Path | None, proposal_source: str = "geometric") -> Path | None:
     """The classifier file to export: ``classifier`` when given (None for ``"none"``), else the
-    one beside ``weights`` trained on ``proposal_source``'s candidates (``classifier_hybrid.pt``
-    for hybrid where it exists, else ``classifier.pt``); None when there is none.
+    one beside ``weights`` that the detector would load for ``proposal_source``
+    (:func:`~shape_detector.detector.packaged_classifier`); None when there is none.
     FileNotFoundError for a given file that is missing."""
     if str(classifier) == "none":
         return None
@@ -41,8 +43,9 @@ def classifier_path(weights: Path, classifier: str | Path | None, proposal_sourc
         if not path.is_file():
             raise FileNotFoundError(f"classifier file {path} not found")
         return path
-    hybrid = weights.with_name("classifier_hybrid.pt")
-    path = hybrid if proposal_source == "hybrid" and hybrid.is_file() else weights.with_name("classifier.pt")
+    from ..detector import packaged_classifier
+
+    path = packaged_classifier(proposal_source, weights.parent)
     return path if path.is_file() else None
 
 

@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from ..detector_config import BUILTIN_PROPOSAL_SOURCES
+
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
     """Arguments of ``train-classifier``."""
@@ -36,7 +38,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--workers", type=int, default=2, help="processes building candidates (default 2)")
     p.add_argument("--proposals", type=int, default=20,
                    help="built-in proposals per frame made candidates, best first (default 20)")
-    p.add_argument("--proposal-source", default="geometric", choices=("geometric", "learned", "hybrid"),
+    p.add_argument("--proposal-source", default="geometric", choices=BUILTIN_PROPOSAL_SOURCES,
                    help="built-in proposer whose candidates the classifier learns from (default geometric); "
                         "the detector picks the classifier trained on its proposer")
     p.add_argument("--epochs", type=int, default=12)
@@ -117,6 +119,16 @@ def load_candidates(paths: list[Path]) -> dict[str, np.ndarray]:
     return {k: np.concatenate(v) for k, v in parts.items()}
 
 
+def _candidate_settings(args: argparse.Namespace) -> dict[str, Any]:
+    """What the cached candidates in ``--out`` depend on (they are reused by file name)."""
+    from ..digests import sha256_file
+    from ..detector import DEFAULT_WEIGHTS
+
+    return {"weights": sha256_file(args.weights or DEFAULT_WEIGHTS), "data": [str(d) for d in args.data],
+            "max_frames": args.max_frames, "workers": args.workers, "proposals": args.proposals,
+            "proposal_source": args.proposal_source}
+
+
 def main(args: argparse.Namespace) -> int:
     """Build (or reuse) the candidates and train the classifier; exit 2 for missing data."""
     from .train_classifier import ClassifierTrainConfig, train_classifier
@@ -125,6 +137,14 @@ def main(args: argparse.Namespace) -> int:
         if not d.exists():
             print(f"shape-detector train-classifier: no data directory {str(d)!r}", file=sys.stderr)
             return 2
+    settings = _candidate_settings(args)
+    stamp = args.out / "candidates.json"
+    if stamp.is_file() and json.loads(stamp.read_text()) != settings:
+        print(f"shape-detector train-classifier: the candidates in {str(args.out)!r} were built with other "
+              f"settings ({stamp}); use another --out or delete them", file=sys.stderr)
+        return 2
+    args.out.mkdir(parents=True, exist_ok=True)
+    stamp.write_text(json.dumps(settings, indent=1))
     t0 = time.time()
     paths = build_all(args.data, args.out, args.weights, args.max_frames, args.workers, args.proposals,
                       args.proposal_source)

@@ -30,13 +30,12 @@ from pathlib import Path
 from typing import Any
 
 from .config import TrainConfig
+from ..detector_config import BUILTIN_PROPOSAL_SOURCES
 from ..digests import sha256_json
 
 RECIPES_DIR = Path(__file__).resolve().parent / "recipes"
 _PHASE_KEYS = {"name", "kind", "comment", "init", "train_data", "val_data", "seed", "keep", "train",
                "network", "datasets", "proposals", "proposal_source", "workers", "max_frames"}
-#: built-in proposers a classifier phase may learn from
-_CLASSIFIER_SOURCES = ("geometric", "learned", "hybrid")
 
 
 def deep_merge(base: Any, over: Any) -> Any:
@@ -111,8 +110,8 @@ def check(r: dict[str, Any]) -> None:
             for d in ph["datasets"]:
                 if d not in r["datasets"]:
                     raise ValueError(f"phase {name}: unknown data set {d!r}")
-            if ph.get("proposal_source", "geometric") not in _CLASSIFIER_SOURCES:
-                raise ValueError(f"phase {name}: proposal_source must be one of {_CLASSIFIER_SOURCES}")
+            if ph.get("proposal_source", "geometric") not in BUILTIN_PROPOSAL_SOURCES:
+                raise ValueError(f"phase {name}: proposal_source must be one of {BUILTIN_PROPOSAL_SOURCES}")
             classifier_train_config(r, ph)  # unknown ClassifierTrainConfig keys fail here
         elif ph.get("kind", "network") != "network":
             raise ValueError(f"phase {name}: kind must be 'network' or 'classifier', not {ph['kind']!r}")
