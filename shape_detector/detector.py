@@ -332,11 +332,10 @@ class ShapeDetector:
                 raise ValueError(f"up must be a finite non-zero 3-vector, got {up}")
             up = up / np.linalg.norm(up)
         up_used, up_conf, floor_height, built_in = self._gravity_and_proposals(rgb, depth, K, up, boxes2d is None)
-        if boxes2d is not None:
+        if boxes2d is not None:  # every given box: the caller chose them (max_objects caps the built-in ones)
             parsed = [(*_parse_box(b), 1.0) for b in boxes2d]
         else:
-            parsed = sorted(built_in, key=lambda p: -p[2])
-        parsed = parsed[: self.config.max_objects]
+            parsed = sorted(built_in, key=lambda p: -p[2])[: self.config.max_objects]
         t2 = time.perf_counter()
         frustums = (extract_frustums(rgb, depth, K, [box for box, _, _ in parsed], self.num_points,
                                      valid=valid_depth(depth), R_cu=upright_rotation(up_used)) if parsed else [])

@@ -37,7 +37,7 @@ class DetectorConfig:
                               "given boxes without a class; empty = the packaged one trained on the proposer's "
                               "candidates (hybrid: classifier_hybrid.pt, else classifier.pt), 'none' = off, or a file",
                               node="rebuild")
-    proposal_source: str = setting("geometric", "2D proposals: geometric (built in, from the depth), learned "
+    proposal_source: str = setting("hybrid", "2D proposals: geometric (built in, from the depth), learned "
                                    "(built in, a small network on colour and depth), hybrid (both: the network's objects with the "
                                    "geometric edges where they agree), external (boxes given with "
                                    "each frame / the detections2d topic) or onnx (a YOLO ONNX file, proposal_model)",
@@ -45,7 +45,8 @@ class DetectorConfig:
     proposal_model: str = setting("", "YOLOv5/v8 ONNX file for proposal_source onnx (COCO classes mapped to ours); "
                                   "for learned or hybrid, another network from train-proposer (empty = the packaged one)")
     score_threshold: float = setting(0.3, "minimum score of a published object", range=(0.0, 1.0), node="dynamic")
-    max_objects: int = setting(10, "built-in proposals (frustums) per frame, best first: the speed knob",
+    max_objects: int = setting(8, "built-in proposals (frustums) per frame, best first: the speed knob "
+                               "(given 2D boxes are all run)",
                                range=(1, 1000), node="dynamic")
     nms_iou: float = setting(0.25, "3D IoU above which the lower-scoring of two built-in detections is "
                              "suppressed", range=(0.0, 1.0), node="dynamic")
@@ -65,7 +66,7 @@ class DetectorConfig:
                              "fp32 for the class-given second pass; torch: bfloat16 "
                              "for 4+ frustums on CPUs with AMX, else fp32), fp32, bf16 (torch), or int8 "
                              "(onnxruntime: every pass's box and shape PointNets in int8, a quarter less network "
-                             "time, accuracy in the model card); auto and int8 also run the learned 2D proposer "
+                             "time, accuracy in the model card); int8 also runs the learned 2D proposer "
                              "(proposal_source learned / hybrid) in int8", choices=PRECISIONS)
     trace: bool = setting(True, "run the PyTorch network as frozen TorchScript graphs (releases the GIL)")
     num_threads: int = setting(1, "intra-op threads of the network; 0 keeps the runtime's default",
@@ -97,8 +98,7 @@ class DetectorConfig:
 #: preset name -> the changes it makes to the defaults
 PRESETS: dict[str, dict[str, Any]] = {
     "realtime": {},
-    "accurate": {"max_objects": 25, "workers": 2, "precision": "fp32", "mirror_tta": "given", "refine_nms": False,
-                 "proposal_source": "hybrid"},
+    "accurate": {"max_objects": 25, "workers": 2, "precision": "fp32", "mirror_tta": "given", "refine_nms": False},
 }
 
 

@@ -85,9 +85,9 @@ class DetectorNode(NodeCore, Node):
         self.types = rclpy_types()
         self._factory = detector_factory
         if p["proposal_source"] == "external" and not self.types.has_vision_msgs:
+            p["proposal_source"] = PARAMETERS["proposal_source"].default
             self.get_logger().error("proposal_source=external needs vision_msgs (Detection2DArray), which is not "
-                                    "installed: using geometric proposals")
-            p["proposal_source"] = "geometric"
+                                    f"installed: using the built-in proposals ({p['proposal_source']})")
         self.init_core(p, p["proposal_source"] == "external")
         # the detector is ready before any subscription exists (a player waiting for
         # subscribers then knows the node is ready)

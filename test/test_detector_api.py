@@ -84,6 +84,17 @@ def test_without_boxes_or_up_uses_builtin_proposals_and_gravity(detector):
     assert set(detector.last_timing) >= {"proposals_ms", "network_ms", "total_ms"}
 
 
+def test_max_objects_caps_the_built_in_proposals_but_never_drops_given_boxes():
+    frame, _, _, _ = _dresser_scene()
+    det = ShapeDetector(score_threshold=0.0, max_objects=1)
+    x1, y1, x2, y2 = 200, 150, 440, 400
+    given = [(x1 + dx, y1, x2 + dx, y2, None) for dx in (-30, -10, 10, 30)]
+    det.detect(frame.rgb, frame.depth, frame.K, boxes2d=given, up=frame.up)
+    assert det.last_timing["num_frustums"] == 4
+    det.detect(frame.rgb, frame.depth, frame.K, up=frame.up)
+    assert det.last_timing["num_frustums"] <= 1
+
+
 def test_empty_depth_and_bad_inputs(detector):
     frame, *_ = _dresser_scene()
     empty = np.full_like(frame.depth, np.nan)

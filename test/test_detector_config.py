@@ -27,7 +27,7 @@ def test_presets_are_valid_and_differ_where_documented():
     rt, acc = preset("realtime"), preset("accurate")
     assert rt == DetectorConfig()
     assert acc.max_objects > rt.max_objects and acc.precision == "fp32"
-    assert rt.proposal_source == "geometric" and acc.proposal_source == "hybrid"
+    assert rt.proposal_source == acc.proposal_source == "hybrid"
     assert set(PRESETS) == {"realtime", "accurate"}
     with pytest.raises(ValueError, match="preset"):
         preset("fastest")

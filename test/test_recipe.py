@@ -136,7 +136,7 @@ def test_hybrid_classifier_candidates_follow_the_packaged_proposer(tmp_path, mon
 
     model = tmp_path / "proposer2d.onnx"
     monkeypatch.setattr(learned, "DEFAULT_MODEL", model)
-    assert runner._proposer_identity() == {"onnx": None, "int8": None}
+    assert runner._proposer_identity() == {"onnx": None, "int8": None, "runs": "proposer2d.onnx"}
     model.write_bytes(b"a")
     first = runner._proposer_identity()
     assert first["onnx"] == sha256_file(model) and first["int8"] is None
@@ -144,6 +144,7 @@ def test_hybrid_classifier_candidates_follow_the_packaged_proposer(tmp_path, mon
     model.write_bytes(b"c")
     second = runner._proposer_identity()
     assert second["onnx"] != first["onnx"] and second["int8"] is not None
+    assert second["runs"] == "proposer2d.onnx"  # candidates come from the float32 network (precision auto)
 
 
 #: default.pt and classifier_hybrid.pt were written by the recipe runner; classifier.pt predates recipes

@@ -332,3 +332,26 @@ def test_play_bag_ros1_in_process(tmp_path, ros_context):
     assert len(imgs) == 4 and len(infos) == 4
     assert [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in imgs] == [t for t, *_ in fr]
     assert imgs[0].width == 64 and abs(infos[0].k[0] - 300.0) < 1e-9
+
+
+@pytest.mark.parametrize("flags, want", [([], None), (["--detections2d", "/boxes"], "external"),
+                                         (["--proposal-source", "geometric"], "geometric")])
+def test_replay_proposes_as_the_preset_unless_told_otherwise(tmp_path, flags, want):
+    """Without a choice, replay runs the realtime preset's proposals (what the node runs)."""
+    import argparse
+
+    from shape_detector.bags.replay_cli import run_offline
+    from shape_detector.detector_config import preset
+    from shape_detector.replay import configure_parser
+
+    p = argparse.ArgumentParser()
+    configure_parser(p)
+    args = p.parse_args([str(tmp_path / "in"), "-o", str(tmp_path / "out"), *flags])
+    seen = {}
+
+    def make_detector(config, _factory):
+        seen["source"] = config.proposal_source
+        raise RuntimeError("stop here")
+
+    run_offline(args, make_detector, lambda *a, **k: None)
+    assert seen["source"] == (want or preset("realtime").proposal_source)

@@ -95,12 +95,12 @@ def _run(args: argparse.Namespace, make_detector: Any, replay_bag: Any) -> int:
 
     if (rc := _check_output_early(args)) is not None:
         return rc
-    proposals = args.proposals or args.proposal_source or ("external" if args.detections2d else "geometric")
+    proposals = args.proposals or args.proposal_source or ("external" if args.detections2d else None)
     if proposals == "external" and not args.detections2d:
         _err("--proposals external needs --detections2d TOPIC")
         return EXIT_USAGE
-    try:
-        config = config_from_args(args, proposal_source=proposals)
+    try:  # without a choice, the preset's proposals
+        config = config_from_args(args, **({"proposal_source": proposals} if proposals else {}))
     except ValueError as e:
         _err(str(e))
         return EXIT_USAGE

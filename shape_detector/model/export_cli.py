@@ -17,7 +17,7 @@ import json
 import sys
 from pathlib import Path
 
-from ..detector_config import BUILTIN_PROPOSAL_SOURCES
+from ..detector_config import BUILTIN_PROPOSAL_SOURCES, DetectorConfig
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
@@ -26,9 +26,10 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--weights", default=None, help="frustum network weights (default: the packaged ones)")
     p.add_argument("--classifier", default=None,
                    help="proposal classifier weights (default: the packaged ones; 'none': skip it)")
-    p.add_argument("--proposal-source", default="geometric", choices=BUILTIN_PROPOSAL_SOURCES,
+    p.add_argument("--proposal-source", default=DetectorConfig().proposal_source, choices=BUILTIN_PROPOSAL_SOURCES,
                    help="the built-in proposer the graphs will serve: picks the default classifier "
-                        "(hybrid: classifier_hybrid.pt beside the weights where there is one)")
+                        "(hybrid: classifier_hybrid.pt beside the weights where there is one; default: the "
+                        "detector's default, %(default)s)")
 
 
 def classifier_path(weights: Path, classifier: str | Path | None, proposal_source: str = "geometric") -> Path | None:

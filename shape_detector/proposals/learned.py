@@ -70,14 +70,15 @@ def decode(heatmap: np.ndarray, reg: np.ndarray, width: int, height: int, k: int
 
 
 def model_file(path: Path, precision: str = "auto") -> Path:
-    """The file to run for the network ``path``: under ``precision`` ``auto`` or ``int8``, its
-    int8 version (:func:`~.learned_int8.int8_path`) where that exists, was built from this very
-    file and ONNX Runtime is installed; else ``path``."""
+    """The file to run for the network ``path``: under ``precision`` ``int8``, its int8 version
+    (:func:`~.learned_int8.int8_path`) where that exists, was built from this very file and ONNX
+    Runtime is installed; else ``path`` (``auto`` included: the int8 boxes cost the detector
+    accuracy, see the model card)."""
     from ..model.onnx_backend import ort_available
     from .learned_int8 import int8_path, int8_source_matches
 
     q = int8_path(path)
-    if precision in ("auto", "int8") and q.is_file() and ort_available():
+    if precision == "int8" and q.is_file() and ort_available():
         if int8_source_matches(q, path):
             return q
         warnings.warn(f"{q.name} was not built from {path.name} (its provenance names another file): running "
@@ -108,8 +109,8 @@ class _Runner:
 class LearnedProposer:
     """Class-agnostic proposals from the learned network (``model_path``: an ONNX file from
     ``shape-detector train-proposer``; default the shipped one); ``max_proposals`` best
-    centres scoring at least ``min_score``; ``precision``: ``auto`` / ``int8`` run the int8
-    version where there is one (:func:`model_file`), ``fp32`` the file itself.
+    centres scoring at least ``min_score``; ``precision``: ``int8`` runs the int8 version
+    where there is one (:func:`model_file`), ``auto`` and ``fp32`` the file itself.
 
     Scores are mapped onto ``score_range``: the proposal classifier, which takes a
     proposal's score as one of its inputs, was trained on the geometric proposer's, which

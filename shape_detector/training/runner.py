@@ -167,13 +167,16 @@ def run_classifier_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_
 
 
 def _proposer_identity() -> dict[str, str | None]:
-    """sha256 of the packaged learned 2D proposer and of its int8 version (the candidates of a
-    learned or hybrid classifier phase depend on them; None where a file is missing)."""
-    from ..proposals.learned import DEFAULT_MODEL
+    """sha256 of the packaged learned 2D proposer and of its int8 version, and the name of the
+    one the candidates are built with (the candidates of a learned or hybrid classifier phase
+    depend on them; None where a file is missing)."""
+    from ..proposals.learned import DEFAULT_MODEL, model_file
     from ..proposals.learned_int8 import int8_path
 
-    return {name: sha256_file(p) if p.is_file() else None
-            for name, p in (("onnx", DEFAULT_MODEL), ("int8", int8_path(DEFAULT_MODEL)))}
+    out: dict[str, str | None] = {name: sha256_file(p) if p.is_file() else None
+                                  for name, p in (("onnx", DEFAULT_MODEL), ("int8", int8_path(DEFAULT_MODEL)))}
+    out["runs"] = model_file(DEFAULT_MODEL).name
+    return out
 
 
 def _classifier_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_root: Path,
