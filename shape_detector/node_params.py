@@ -83,6 +83,9 @@ class NodeConfig:
                                               "frames", range=(1, 1000))
     scene_delete_misses: int = setting(3, "a tracked object is removed after this many frames that see its space "
                                        "empty", range=(1, 1000))
+    scene_publish_score: float = setting(0.5, "a confirmed tracked object is published (scene, map grid, JSON) "
+                                         "while its score, which grows with consistent detections, is at least "
+                                         "this (0 = as soon as confirmed)", range=(0.0, 1.0))
     scene_in: str = setting("", "scene JSON to continue at start (written by scene_out or replay --scene-out, in "
                             "world_frame, e.g. a robot's map frame); empty = start a fresh map")
     scene_out: str = setting("", "file the scene map is written to as JSON (atomically) by ~/save_scene, every "

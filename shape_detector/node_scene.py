@@ -47,7 +47,8 @@ def scene_config(p: dict[str, Any]) -> SceneConfig:
     return SceneConfig(world_frame=str(p["world_frame"]).lstrip("/") or "odom",
                        grid_resolution=float(p["grid_resolution"]), inflation_radius=float(p["inflation_radius"]),
                        confirm_observations=int(p["scene_confirm_observations"]),
-                       delete_misses=int(p["scene_delete_misses"]))
+                       delete_misses=int(p["scene_delete_misses"]),
+                       publish_score=float(p["scene_publish_score"]))
 
 
 def newest_stamp_ns(kind: str, msg: Any) -> int:

@@ -95,7 +95,7 @@ def test_an_explicit_source_without_a_pose_skips_the_update():
 
 def test_auto_is_static_until_a_pose_arrives_then_restarts_in_the_world_frame():
     warn = Warnings()
-    feed = SceneFeed(params(pose_source="auto", scene_confirm_observations=1), warn)
+    feed = SceneFeed(params(pose_source="auto", scene_confirm_observations=1, scene_publish_score=0.0), warn)
     assert feed.update([chair()], floor_depth(), K, 10**8, "cam", np.array([0.0, -1.0, 0.0]))
     assert "scene_static" in warn.kinds() and len(feed.snapshot()[0]) == 1
     feed.add_pose("odometry", odometry(2 * 10**8, x=3.0))
@@ -172,7 +172,7 @@ def test_answer_plan_without_a_scene_is_an_empty_path():
 
 
 def test_surfaces_key_changes_when_objects_move():
-    feed = SceneFeed(params(pose_source="none", scene_confirm_observations=1), Warnings())
+    feed = SceneFeed(params(pose_source="none", scene_confirm_observations=1, scene_publish_score=0.0), Warnings())
     feed.update([chair()], floor_depth(), K, 10**8, "cam", None)
     objects = feed.snapshot()[0]
     key = surfaces_key(objects)

@@ -49,6 +49,19 @@ def test_one_frame_false_positive_is_never_published():
     assert len(m.objects()) == 1
 
 
+def test_a_doubtful_track_is_kept_but_not_published_until_its_score_reaches_publish_score():
+    weak = detection(*CHAIR, T0, score=0.45)  # the track's score never exceeds its detections' mean
+    m = SceneMap()
+    _feed(m, [[weak]] * 10)
+    assert m.objects() == [] and not (m.grid().data == 100).any()
+    assert len(m.tracks) == 1 and m.tracks[0].confirmed  # tracked, so later detections build on it
+    _feed(m, [[detection(*CHAIR, T0, score=0.95)]] * 10)
+    assert [o.class_name for o in m.objects()] == ["chair"] and (m.grid().data == 100).any()
+    every = SceneMap(SceneConfig(publish_score=0.0))
+    _feed(every, [[weak]] * 10)
+    assert len(every.objects()) == 1
+
+
 def test_score_grows_with_consistent_observations():
     m = SceneMap()
     det = detection(*CHAIR, T0, score=0.8)

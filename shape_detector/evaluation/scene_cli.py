@@ -42,6 +42,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
                    help="ground truth: objects seen in at least this many frames (default 3)")
     p.add_argument("--confirm-observations", type=int, default=None, help="SceneConfig.confirm_observations")
     p.add_argument("--delete-misses", type=int, default=None, help="SceneConfig.delete_misses")
+    p.add_argument("--publish-score", type=float, default=None, help="SceneConfig.publish_score (0: every "
+                   "confirmed track)")
     p.add_argument("--up", choices=("pose", "estimate"), default="pose",
                    help="gravity for the detector: pose (the camera pose's z axis, default; the node's "
                    "up_source auto with a pose) or estimate (from each frame)")
@@ -65,7 +67,8 @@ def _config(args: argparse.Namespace) -> Any:
     from ..scene import SceneConfig
 
     changes = {k: v for k, v in (("confirm_observations", args.confirm_observations),
-                                 ("delete_misses", args.delete_misses)) if v is not None}
+                                 ("delete_misses", args.delete_misses),
+                                 ("publish_score", args.publish_score)) if v is not None}
     return replace(SceneConfig(), **changes)
 
 

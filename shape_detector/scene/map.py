@@ -63,6 +63,9 @@ class SceneConfig:
     #: ... and once its accumulated fusion weight (about the number of sure, fully visible
     #: detections) reaches this: the box has settled before it is published
     confirm_weight: float = 0.1
+    #: a confirmed track is published (objects, grid, JSON) while its score is at least this:
+    #: tracks that stay doubtful are mostly on clutter or second tracks of one object
+    publish_score: float = 0.5
     #: a track is removed after this many frames in which its space is seen empty
     delete_misses: int = 3
     #: an unpublished track not detected for this many frames is dropped
@@ -166,7 +169,7 @@ class SceneMap:
     def _objects_and_structure(self, surfaces: bool) -> tuple[list[SceneObject], np.ndarray | None]:
         """:meth:`objects`, and with ``surfaces`` the observed points no object claims (None
         without surfaces)."""
-        out = [self._published(t) for t in sorted(self.tracks, key=lambda t: t.id) if t.confirmed]
+        out = [self._published(t) for t in sorted(self.tracks, key=lambda t: t.id) if self._shown(t)]
         seen = self.surface_points() if surfaces else None
         if seen is None:
             return out, None
@@ -192,7 +195,7 @@ class SceneMap:
         if self._grid is None:
             parts = []
             for t in self.tracks:
-                if not t.confirmed:
+                if not self._shown(t):
                     continue
                 prims = t.primitives()
                 parts += [(p.center, p.size, p.rotation) for p in prims] or [(t.center, t.size, t.rotation)]
@@ -369,6 +372,10 @@ class SceneMap:
         self.floor.add(np.concatenate([near, cells]))
         if self.surface is not None:
             self.surface.add(pts[pts[:, 2] > self.floor_z + c.floor_band])
+
+    def _shown(self, t: Track) -> bool:
+        """Whether track ``t`` is published: confirmed, and scored at least ``publish_score``."""
+        return t.confirmed and t.score >= self.config.publish_score
 
     @staticmethod
     def _published(t: Track) -> SceneObject:
