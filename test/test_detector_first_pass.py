@@ -62,7 +62,9 @@ def test_duplicates_are_suppressed_before_the_second_pass(monkeypatch):
     frames = [make_frame(seed=s) for s in (1, 2, 3)]
     runs = {}
     for nms in (True, False):
-        det = ShapeDetector(refine_nms=nms)
+        # the suppression does not depend on the proposer; with the geometric one every object of
+        # these frames keeps its class either way (with hybrid, one sofa is a bed without it)
+        det = ShapeDetector(refine_nms=nms, proposal_source="geometric", max_objects=10)
         sizes = []
         orig = det.predictor.refine
 
@@ -74,13 +76,8 @@ def test_duplicates_are_suppressed_before_the_second_pass(monkeypatch):
         runs[nms] = ([_objects(det, f) for f in frames], sum(sizes))
     (with_nms, n_nms), (without, n_all) = runs[True], runs[False]
     assert n_nms < n_all  # fewer frustums run the second pass
-    other_class = 0
     for a, b in zip(with_nms, without):
         assert abs(len(a) - len(b)) <= 1  # the published objects are (nearly) the same ones
-        for p in a:  # each published object has a counterpart nearby, nearly always of the same class
-            near = [q for q in b if np.linalg.norm(q.center - p.center) < 0.3]
-            assert near
-            other_class += all(q.class_name != p.class_name for q in near)
+        for p in a:  # each published object has a counterpart of the same class nearby
+            assert any(q.class_name == p.class_name and np.linalg.norm(q.center - p.center) < 0.3 for q in b)
         assert all(len(p.primitives) > 0 for p in a)
-    # a suppressed duplicate may have won its object with another class (sofa / bed)
-    assert other_class <= 1

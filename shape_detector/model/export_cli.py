@@ -32,10 +32,10 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
                         "detector's default, %(default)s)")
 
 
-def classifier_path(weights: Path, classifier: str | Path | None, proposal_source: str = "geometric") -> Path | None:
+def classifier_path(weights: Path, classifier: str | Path | None, proposal_source: str | None = None) -> Path | None:
     """The classifier file to export: ``classifier`` when given (None for ``"none"``), else the
-    one beside ``weights`` that the detector would load for ``proposal_source``
-    (:func:`~shape_detector.detector.packaged_classifier`); None when there is none.
+    one beside ``weights`` that the detector would load for ``proposal_source`` (None: the
+    detector's default; :func:`~shape_detector.detector.packaged_classifier`); None when there is none.
     FileNotFoundError for a given file that is missing."""
     if str(classifier) == "none":
         return None
@@ -46,12 +46,12 @@ def classifier_path(weights: Path, classifier: str | Path | None, proposal_sourc
         return path
     from ..detector import packaged_classifier
 
-    path = packaged_classifier(proposal_source, weights.parent)
+    path = packaged_classifier(proposal_source or DetectorConfig().proposal_source, weights.parent)
     return path if path.is_file() else None
 
 
 def export_all(out: str | Path, weights: str | Path | None = None, classifier: str | Path | None = None,
-               proposal_source: str = "geometric") -> dict:
+               proposal_source: str | None = None) -> dict:
     """Export the frustum graphs of ``weights`` (None: packaged) and, unless ``classifier`` is
     ``"none"``, the classifier graph (:func:`classifier_path`) into ``out``; returns the written
     ``graphs.json``. FileNotFoundError for a missing weights file."""
