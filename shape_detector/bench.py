@@ -1,7 +1,8 @@
-"""``shape-detector bench``: benchmarks that print numbers (never run by the unit tests).
+"""``shape-detector bench``: benchmarks that print numbers (whose timings no unit test asserts).
 
 Targets: ``synth`` (scene generator frames/s), ``network`` (batched forward ms/frame for 1,
-5, 10 objects), ``proposals`` (gravity + geometric proposals ms per VGA frame),
+5, 10 objects), ``proposals`` (gravity + geometric proposals ms per VGA frame, and the default
+built-in proposer's whole call),
 ``pipeline`` (whole ``ShapeDetector.detect`` on generated VGA frames, serial and as the
 node's two-thread pipeline and its detector processes), ``node`` (ROS node
 frames/s and stamp-to-publish latency on the sample bag), ``all``; and ``soak`` (the node

@@ -61,3 +61,18 @@ def test_split_prepare_runs_no_first_pass_in_the_first_stage():
 def test_a_single_frame_has_no_steady_state():
     with pytest.raises(ValueError, match="at least 2 frames"):
         _bench_pipelined(StageLog(), _frames(1))
+
+
+def test_the_proposals_benchmark_times_the_default_built_in_proposer_too() -> None:
+    from shape_detector.detector_config import preset
+    from shape_detector.proposals.bench import bench_proposals
+
+    res = bench_proposals(frames=1, repeats=1, verbose=False)
+    assert res["total_ms_p50"] > 0 and res["proposals_per_frame"] > 0
+    source = preset("realtime").proposal_source
+    if source == "geometric":
+        assert "source" not in res
+    else:  # the default's own proposer, as detect() calls it
+        assert res["source"] == source and res["source_ms_p50"] > 0
+        if source == "hybrid":
+            assert res["learned_ms_p50"] > 0

@@ -392,3 +392,22 @@ def test_second_box_stage_starts_as_the_init_model_and_trains_alone(ds, tmp_path
         oc = c(batch["points"], batch["one_hot"])
     assert_outputs_close({"center": oc["center_head"]}, oa, ["center"])  # the first box is the init's
     assert outputs_differ(oc["center"], oa["center"]) and outputs_differ(oc["box_size"], oa["box_size"])
+
+
+def test_an_init_may_differ_in_its_point_counts_but_not_in_its_layers() -> None:
+    """Fine-tuning at other point counts starts from the init's parameters unchanged (the counts
+    shape no parameter); a different layer width is still refused."""
+    from shape_detector.model.config import ModelConfig
+    from shape_detector.model.network import FrustumShapeNet
+    from shape_detector.training.init_from import load_init
+
+    tuple_small = {k: tuple(v) if isinstance(v, list) else v for k, v in SMALL.items()}
+    torch.manual_seed(0)
+    a = FrustumShapeNet(ModelConfig(**tuple_small))
+    b = FrustumShapeNet(ModelConfig(**dict(tuple_small, num_points=64, num_object_points=32)))
+    load_init(b, a, None)
+    assert b.config.num_points == 64 and b.config.num_object_points == 32
+    assert not changed_keys(a.state_dict(), b.state_dict())
+    wider = FrustumShapeNet(ModelConfig(**dict(tuple_small, cls_fc=(32,))))
+    with pytest.raises(ValueError, match="cls_fc"):
+        load_init(wider, a, None)

@@ -3,9 +3,12 @@
 Times, on generated VGA frames (``shape_detector.synth.generate``), the stages of
 :class:`GeometricProposer` as the detector runs them: ``grid`` (strided back-projection + normals), ``gravity``
 (:func:`~shape_detector.gravity.estimate_up` on that grid), ``proposals`` (structure
-removal, segmentation, hypotheses) and ``total`` (the whole call). Prints and returns
-median / p95 wall-clock ms and the median thread CPU ms (less sensitive to other
-processes on a shared machine), plus the 1-minute load average.
+removal, segmentation, hypotheses) and ``total`` (the whole call); then, when the
+``realtime`` preset's ``proposal_source`` is another one (``hybrid``: the learned network in
+a thread beside the geometric proposer), that proposer's whole call as the detector makes
+it (``source``) and the learned network alone (``learned``). Prints and returns median / p95
+wall-clock ms and the median thread CPU ms (less sensitive to other processes on a shared
+machine; for ``source`` only the calling thread's), plus the 1-minute load average.
 """
 
 from __future__ import annotations
@@ -21,6 +24,33 @@ def _frames(n: int, seed0: int):
     from ..synth.generate import generate_frame
 
     return [generate_frame(seed0 + i) for i in range(n)], "synth"
+
+
+def _time_source(data: list, timed, wall: dict, cpu: dict, res: dict, repeats: int) -> tuple[str, ...]:
+    """Time the ``realtime`` preset's built-in proposer when it is not the geometric one
+    (see the module docstring); the stage names it added."""
+    from ..detector_config import preset
+    from ..proposal_source import make_proposer
+
+    cfg = preset("realtime")
+    if cfg.proposal_source == "geometric":
+        return ()
+    proposer = make_proposer(cfg)
+    res["source"] = cfg.proposal_source
+    added: tuple[str, ...] = ("source",)
+    learned = getattr(proposer, "learned", None)
+    if learned is not None:
+        added += ("learned",)
+    for k in added:
+        wall[k], cpu[k] = [], []
+    for f in data[:2]:  # warm-up
+        proposer(f.depth, f.K, rgb=f.rgb)
+    for _ in range(max(1, repeats)):
+        for f in data:
+            timed("source", lambda f=f: proposer(f.depth, f.K, rgb=f.rgb))
+            if learned is not None:
+                timed("learned", lambda f=f: learned.detect(f.rgb, f.depth))
+    return added
 
 
 def bench_proposals(frames: int = 20, seed0: int = 20_000, repeats: int = 2, verbose: bool = True) -> dict:
@@ -55,6 +85,7 @@ def bench_proposals(frames: int = 20, seed0: int = 20_000, repeats: int = 2, ver
             nprops.append(len(props))
     h, w = data[0].depth.shape
     res: dict = {"frames": len(data), "source": source, "image": f"{w}x{h}", "stride": stride}
+    stages = stages + _time_source(data, timed, wall, cpu, res, repeats)
     for k in stages:
         res[f"{k}_ms_p50"] = float(np.median(wall[k]))
         res[f"{k}_ms_p95"] = float(np.percentile(wall[k], 95))
@@ -72,8 +103,9 @@ def bench_proposals(frames: int = 20, seed0: int = 20_000, repeats: int = 2, ver
             flush=True,
         )
         for k in stages:
+            label = res["source"] if k == "source" else k
             print(
-                f"  {k:<10} {res[f'{k}_ms_p50']:6.1f} ({res[f'{k}_ms_p95']:6.1f}) [{res[f'{k}_cpu_ms_p50']:5.1f}]",
+                f"  {label:<10} {res[f'{k}_ms_p50']:6.1f} ({res[f'{k}_ms_p95']:6.1f}) [{res[f'{k}_cpu_ms_p50']:5.1f}]",
                 flush=True,
             )
         print(f"  -> {res['total_fps_p50']:.0f} fps, {res['proposals_per_frame']:.1f} proposals/frame", flush=True)

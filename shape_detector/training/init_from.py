@@ -10,6 +10,9 @@ from ..model.network import FrustumShapeNet
 
 #: model-config keys of the primitive mapping: may differ only when the shape head restarts
 _SHAPE_MAPPING_KEYS = ("primitive_min_size_frac",)
+#: model-config keys that set how many points are sampled, not any parameter's shape: a run
+#: may fine-tune at other counts than its init was trained with
+_SAMPLING_KEYS = ("num_points", "num_object_points")
 #: config keys of each branch that may be added to an init without it -> its child modules
 _GROWABLE = {
     "box_context_widths": ("ctx_mlp",),
@@ -31,7 +34,7 @@ def _grown(model: FrustumShapeNet, init_model: FrustumShapeNet) -> set[str]:
 
 def _check_configs(model: FrustumShapeNet, init_model: FrustumShapeNet, fresh: set[str]) -> None:
     a, b = model.config.to_dict(), init_model.config.to_dict()
-    drop: list[str] = []
+    drop: list[str] = list(_SAMPLING_KEYS)
     if "shape_anchor" in fresh or "shape_head" in fresh:
         drop += list(_SHAPE_MAPPING_KEYS)
     if "shape_anchor" in fresh:
@@ -48,7 +51,8 @@ def _check_configs(model: FrustumShapeNet, init_model: FrustumShapeNet, fresh: s
 
 def load_init(model: FrustumShapeNet, init_model: FrustumShapeNet, reinit: list[str] | None) -> bool:
     """Copy ``init_model``'s parameters into ``model`` except the ``reinit`` parts, which keep
-    their fresh initialisation. The model configs must be equal, except the primitive mapping
+    their fresh initialisation. The model configs must be equal, except the point counts
+    (:data:`_SAMPLING_KEYS`), the primitive mapping
     when the shape head restarts or gets its first class anchors, and the box context branch,
     second box stage or shape context branch when ``model`` adds them (each starts as a no-op).
     Returns whether the class anchors came from ``init_model``."""
