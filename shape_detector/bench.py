@@ -70,6 +70,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
                         "with a camera pose does (up_source auto)")
     p.add_argument("--proposal-source", default=None, choices=BUILTIN_PROPOSAL_SOURCES,
                    help="pipeline: built-in 2D proposals (default: the realtime preset's)")
+    p.add_argument("--frustum-points", type=int, default=None,
+                   help="pipeline: points per frustum (default: the realtime preset's, 0 = the network's count)")
     p.add_argument("--processes", type=int, default=2,
                    help="pipeline: also time the node's pipeline with this many detector processes (0: not)")
     p.add_argument("--bag", default=str(Path(__file__).resolve().parents[1] / "bags" / "sample"))
@@ -125,6 +127,7 @@ def bench_pipeline(
     device: str | None = None,
     gravity: str = "estimate",
     proposal_source: str | None = None,
+    frustum_points: int | None = None,
 ) -> dict:
     """Median / p95 ms per VGA frame of serial ``ShapeDetector.detect`` (the realtime preset;
     arguments that are not None change its settings) with GT boxes (``gt_boxes``), with 10
@@ -142,13 +145,14 @@ def bench_pipeline(
         precision=precision, weights=weights, score_threshold=score_threshold, num_threads=threads, workers=workers,
         max_objects=max_objects, classifier=None if classifier else False, refine=refine, trace=trace,
         free_space=free_space, backend=backend, device=device, proposal_source=proposal_source,
+        frustum_points=frustum_points,
     )
     det = ShapeDetector(**{k: v for k, v in overrides.items() if v is not None})
     scenes = _pipeline_frames(frames, data)
     det.warm_up()  # as the node does at start: the network's graphs are traced
     cfg = det.config
     print(f"pipeline: {len(scenes)} VGA frames, backend {det.predictor.backend} on {det.predictor.device}, precision {det.predictor.precision}, "
-          f"max_objects {cfg.max_objects}, workers {det.predictor.workers} ({cfg.workers or 'auto'}), threads {cfg.num_threads}, "
+          f"max_objects {cfg.max_objects}, {det.num_points} points a frustum, workers {det.predictor.workers} ({cfg.workers or 'auto'}), threads {cfg.num_threads}, "
           f"score_threshold {cfg.score_threshold}, gravity {gravity}, proposals {cfg.proposal_source}; load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs",
           flush=True)
     out: dict[str, dict] = {}
@@ -354,6 +358,7 @@ def run_target(target: str, args: argparse.Namespace) -> dict:
             free_space=not args.no_free_space, backend=args.backend, score_threshold=args.score_threshold,
             data=args.data, peer=not args.no_peer, against=args.against, processes=args.processes,
             device=args.device, gravity=args.gravity, proposal_source=args.proposal_source,
+            frustum_points=args.frustum_points,
         )
     if target == "node":
         from .node_bench import bench_node

@@ -48,6 +48,11 @@ class DetectorConfig:
     max_objects: int = setting(8, "built-in proposals (frustums) per frame, best first: the speed knob "
                                "(given 2D boxes are all run)",
                                range=(1, 1000), node="dynamic")
+    frustum_points: int = setting(0, "points sampled per frustum; 0 = the count the network was trained "
+                                  "with (512 for the packaged one). Fewer cost less in every pass, given boxes "
+                                  "too: 256 takes about 0.8x the time on a 2-core CPU without AMX, at about a "
+                                  "point of built-in mAP@0.25 (docs/model_card.md)", range=(0, 8192),
+                                  node="rebuild")
     nms_iou: float = setting(0.25, "3D IoU above which the lower-scoring of two built-in detections is "
                              "suppressed", range=(0.0, 1.0), node="dynamic")
     nms_decay: float = setting(0.1, "score factor kept by a suppressed detection (Soft-NMS); 0 drops it",

@@ -174,3 +174,23 @@ def test_settings_come_from_one_config_and_bad_ones_are_refused(detector):
     assert det.score_threshold == 0.6 and "free_space" not in det.postprocess.names
     with pytest.raises(ValueError, match="workers"):
         det.configure(workers=2)
+
+
+@pytest.mark.parametrize("backend", ["onnxruntime", "torch"])
+def test_frustum_points_runs_the_network_on_fewer_points_and_still_finds_the_box(backend):
+    """``frustum_points``: every frustum is cut with that many points (warm-up and tracing
+    included), and the hand-placed box is still recovered; 0 keeps the network's own count."""
+    frame, centre, size, _ = _dresser_scene()
+    gt = frame.objects[0]
+    det = ShapeDetector(score_threshold=0.0, backend=backend, frustum_points=256)
+    assert det.num_points == 256 and det.predictor.num_points == 256
+    det.warm_up()
+    prepared = det.prepare(frame.rgb, frame.depth, frame.K, boxes2d=[(*gt.box2d, "dresser")], up=frame.up)
+    assert [f.points.shape[0] for f in prepared.frustums] == [256]
+    objects = det.finish(prepared)
+    assert len(objects) == 1 and objects[0].class_name == "dresser"
+    assert np.linalg.norm(objects[0].center - centre) < 0.08
+    np.testing.assert_allclose(objects[0].size, size, rtol=0.25)
+    assert ShapeDetector(backend=backend).num_points == 512  # the packaged network's count
+    with pytest.raises(ValueError, match="frustum_points"):
+        ShapeDetector(frustum_points=-1)

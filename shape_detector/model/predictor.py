@@ -76,7 +76,9 @@ class FrustumPredictor:
     PointNets' wide layers in int8, with ``"auto"`` those of some passes
     (:func:`.onnx_quantize.quantized_passes`). Torch runs ``"int8"`` as fp32.
     ``trace`` (torch, CPU): frozen TorchScript graphs (:mod:`.traced`); False = eager (and
-    ``backend="auto"`` then means torch).
+    ``backend="auto"`` then means torch). ``points``: points per frustum to run at (0: the
+    count the network was trained with, :attr:`ModelConfig.num_points`); warm-up and tracing
+    use it, so every frustum given to this predictor should have that many.
     """
 
     def __init__(
@@ -89,11 +91,15 @@ class FrustumPredictor:
         precision: str = "fp32",
         trace: bool = True,
         backend: str = "auto",
+        points: int = 0,
     ) -> None:
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+        if int(points) < 0:
+            raise ValueError(f"points must be >= 0 (0: the network's own count), got {points}")
         self.precision = precision
         self.num_threads = num_threads
+        self._points = int(points)
         self.backend = resolve_backend(backend, precision, trace, str(device))
         self._trace = bool(trace)
         self.workers = max(1, int(workers))
@@ -226,8 +232,9 @@ class FrustumPredictor:
 
     @property
     def num_points(self) -> int:
-        """Points per frustum the network was trained with (extract frustums with this)."""
-        return int(self.config.num_points)
+        """Points per frustum to extract: ``points`` where given, else the count the network
+        was trained with."""
+        return self._points or int(self.config.num_points)
 
     @property
     def has_class_head(self) -> bool:

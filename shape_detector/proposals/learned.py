@@ -51,7 +51,8 @@ def decode(heatmap: np.ndarray, reg: np.ndarray, width: int, height: int, k: int
     to it, best first) from one frame's outputs: ``heatmap`` (h, w) logits, ``reg`` (4, h, w)
     = offset x, offset y, log width, log height in output cells. A cell is a centre when it
     is the maximum of its 3x3 neighbourhood and scores at least ``min_score``."""
-    p = 1.0 / (1.0 + np.exp(-np.asarray(heatmap, dtype=np.float64)))
+    # logits below -700 would overflow exp(); clipped, they still map to probability ~0
+    p = 1.0 / (1.0 + np.exp(-np.clip(np.asarray(heatmap, dtype=np.float64), -700.0, 700.0)))
     hh, ww = p.shape
     win = cv2.dilate(p, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=-1.0)
     peaks = np.flatnonzero((p >= win) & (p >= min_score))
