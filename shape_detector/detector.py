@@ -142,14 +142,8 @@ def _classifier_spec(text: str) -> str | bool:
 
 
 def _backend_kw(cls: Any, cfg: DetectorConfig) -> dict[str, Any]:
-    """``backend=`` and ``points=`` for runtimes that take them (custom predictors may not)."""
-    params = inspect.signature(cls).parameters
-    kw: dict[str, Any] = {"backend": cfg.backend} if "backend" in params else {}
-    if cfg.frustum_points:
-        if "points" not in params:
-            raise ValueError(f"frustum_points={cfg.frustum_points}: {cls.__name__} runs only its own point count")
-        kw["points"] = cfg.frustum_points
-    return kw
+    """``backend=`` for runtimes that offer a choice (custom predictors may not)."""
+    return {"backend": cfg.backend} if "backend" in inspect.signature(cls).parameters else {}
 
 
 def _preset(name: str) -> DetectorConfig:
@@ -245,8 +239,8 @@ class ShapeDetector:
         self.weights = path
         self.predictor = FrustumPredictor(path, device=cfg.device, num_threads=cfg.num_threads or None,
                                           workers=resolved_workers(cfg.workers), precision=cfg.precision, trace=cfg.trace,
-                                          **_backend_kw(FrustumPredictor, cfg))
-        self.num_points = int(cfg.frustum_points or self.predictor.config.num_points)
+                                          points=cfg.frustum_points, **_backend_kw(FrustumPredictor, cfg))
+        self.num_points = self.predictor.num_points
         self._proposer = make_proposer(cfg)
         self.postprocess = build_pipeline(cfg)
         self.classifier = _load_classifier(_classifier_spec(cfg.classifier), cfg)

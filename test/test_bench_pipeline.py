@@ -69,10 +69,11 @@ def test_the_proposals_benchmark_times_the_default_built_in_proposer_too() -> No
 
     res = bench_proposals(frames=1, repeats=1, verbose=False)
     assert res["total_ms_p50"] > 0 and res["proposals_per_frame"] > 0
+    assert res["source"] == "synth"  # where the frames came from, not overwritten by the proposer's name
     source = preset("realtime").proposal_source
     if source == "geometric":
-        assert "source" not in res
+        assert "proposer" not in res
     else:  # the default's own proposer, as detect() calls it
-        assert res["source"] == source and res["source_ms_p50"] > 0
+        assert res["proposer"] == source and res["proposer_ms_p50"] > 0
         if source == "hybrid":
             assert res["learned_ms_p50"] > 0

@@ -6,9 +6,9 @@ Times, on generated VGA frames (``shape_detector.synth.generate``), the stages o
 removal, segmentation, hypotheses) and ``total`` (the whole call); then, when the
 ``realtime`` preset's ``proposal_source`` is another one (``hybrid``: the learned network in
 a thread beside the geometric proposer), that proposer's whole call as the detector makes
-it (``source``) and the learned network alone (``learned``). Prints and returns median / p95
+it (``proposer``; its name in ``res["proposer"]``) and the learned network alone (``learned``). Prints and returns median / p95
 wall-clock ms and the median thread CPU ms (less sensitive to other processes on a shared
-machine; for ``source`` only the calling thread's), plus the 1-minute load average.
+machine; for ``proposer`` only the calling thread's), plus the 1-minute load average.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ def _frames(n: int, seed0: int):
     return [generate_frame(seed0 + i) for i in range(n)], "synth"
 
 
-def _time_source(data: list, timed, wall: dict, cpu: dict, res: dict, repeats: int) -> tuple[str, ...]:
+def _time_default_proposer(data: list, timed, wall: dict, cpu: dict, res: dict, repeats: int) -> tuple[str, ...]:
     """Time the ``realtime`` preset's built-in proposer when it is not the geometric one
     (see the module docstring); the stage names it added."""
     from ..detector_config import preset
@@ -36,8 +36,8 @@ def _time_source(data: list, timed, wall: dict, cpu: dict, res: dict, repeats: i
     if cfg.proposal_source == "geometric":
         return ()
     proposer = make_proposer(cfg)
-    res["source"] = cfg.proposal_source
-    added: tuple[str, ...] = ("source",)
+    res["proposer"] = cfg.proposal_source
+    added: tuple[str, ...] = ("proposer",)
     learned = getattr(proposer, "learned", None)
     if learned is not None:
         added += ("learned",)
@@ -47,7 +47,7 @@ def _time_source(data: list, timed, wall: dict, cpu: dict, res: dict, repeats: i
         proposer(f.depth, f.K, rgb=f.rgb)
     for _ in range(max(1, repeats)):
         for f in data:
-            timed("source", lambda f=f: proposer(f.depth, f.K, rgb=f.rgb))
+            timed("proposer", lambda f=f: proposer(f.depth, f.K, rgb=f.rgb))
             if learned is not None:
                 timed("learned", lambda f=f: learned.detect(f.rgb, f.depth))
     return added
@@ -85,7 +85,7 @@ def bench_proposals(frames: int = 20, seed0: int = 20_000, repeats: int = 2, ver
             nprops.append(len(props))
     h, w = data[0].depth.shape
     res: dict = {"frames": len(data), "source": source, "image": f"{w}x{h}", "stride": stride}
-    stages = stages + _time_source(data, timed, wall, cpu, res, repeats)
+    stages = stages + _time_default_proposer(data, timed, wall, cpu, res, repeats)
     for k in stages:
         res[f"{k}_ms_p50"] = float(np.median(wall[k]))
         res[f"{k}_ms_p95"] = float(np.percentile(wall[k], 95))
@@ -103,7 +103,7 @@ def bench_proposals(frames: int = 20, seed0: int = 20_000, repeats: int = 2, ver
             flush=True,
         )
         for k in stages:
-            label = res["source"] if k == "source" else k
+            label = res["proposer"] if k == "proposer" else k
             print(
                 f"  {label:<10} {res[f'{k}_ms_p50']:6.1f} ({res[f'{k}_ms_p95']:6.1f}) [{res[f'{k}_cpu_ms_p50']:5.1f}]",
                 flush=True,
