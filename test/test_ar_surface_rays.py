@@ -45,6 +45,29 @@ def test_memory_keeps_voxel_means_and_counts() -> None:
     assert sorted(counts.tolist()) == [1, 3]
 
 
+def test_memory_merged_in_batches_keeps_every_voxel_mean(monkeypatch: pytest.MonkeyPatch) -> None:
+    import shape_detector.scene.surface as surface
+
+    monkeypatch.setattr(surface, "PENDING_MIN", 500)  # many merges into a growing memory
+    rng = np.random.default_rng(3)
+    frames = [rng.uniform(-1.0, 1.0, (400, 3)) + rng.uniform(-2.0, 2.0, 3) for _ in range(30)]
+    mem = SurfaceMemory(0.1)
+    for i, p in enumerate(frames):
+        mem.add(p, weight=1 + i % 2)
+    allp = np.concatenate(frames)
+    w = np.repeat([1 + i % 2 for i in range(len(frames))], 400)
+    keys, inv = np.unique(np.floor(allp / 0.1).astype(np.int64), axis=0, return_inverse=True)
+    inv = inv.ravel()
+    counts = np.bincount(inv, w)
+    means = np.stack([np.bincount(inv, allp[:, k] * w) for k in range(3)], axis=1) / counts[:, None]
+    assert len(mem) == len(keys)
+    order = np.lexsort(mem.points().T[::-1])
+    want = np.lexsort(means.T[::-1])
+    np.testing.assert_allclose(mem.points()[order], means[want], atol=1e-9)
+    np.testing.assert_array_equal(mem.counts()[order], counts[want])
+    assert len(mem.points(min_count=3)) == int(np.sum(counts >= 3))
+
+
 def test_memory_bound_drops_the_least_seen_voxels() -> None:
     mem = SurfaceMemory(0.1, max_voxels=2)
     for _ in range(3):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from shape_detector.scene import SceneMap
-from shape_detector.scene.visibility import seen_empty
+from shape_detector.scene.visibility import seen_empty, seen_empty_many
 from test_scene_support import K, detection, pose, render, room
 
 T0 = pose(0.0, 0.0, 1.2, 0.0)
@@ -29,6 +29,16 @@ def test_seen_empty_classifies_present_removed_and_hidden():
     wall = ((1.5, 0.0, 1.0), (0.2, 3.0, 2.0), 0.0)
     assert seen_empty(PARTS, T0, render(room([wall]), T0), K) is False  # hidden: nothing known
     assert seen_empty(PARTS, pose(0.0, 0.0, 1.2, np.pi), render(room(), pose(0.0, 0.0, 1.2, np.pi)), K) is None
+
+
+def test_seen_empty_many_answers_each_object_as_seen_empty_does():
+    behind = [((-3.0, 0.0, 0.45), (0.5, 0.5, 0.9), np.eye(3))]  # behind the camera: not in view
+    two = PARTS + [((2.0, 1.0, 0.3), (0.3, 0.3, 0.3), np.eye(3))]
+    for scene in (room([CHAIR]), room()):
+        d = render(scene, T0)
+        many = seen_empty_many([PARTS, behind, [], two], T0, d, K)
+        assert many == [seen_empty(PARTS, T0, d, K), None, None, seen_empty(two, T0, d, K)]
+    assert seen_empty_many([PARTS], T0, render(room(), T0), K) == [True]
 
 
 def test_removed_object_disappears_after_delete_misses_frames():

@@ -43,7 +43,7 @@ from .observe import to_observation
 from .surface import SurfaceMemory, split_points
 from .tracks import N_CLASSES, Observation, Track
 from .types import SceneObject, ScenePrimitive
-from .visibility import EmptyParams, seen_empty
+from .visibility import EmptyParams, seen_empty_many
 
 log = logging.getLogger(__name__)
 
@@ -321,21 +321,19 @@ class SceneMap:
         return matched
 
     def _negative_evidence(self, matched: set[int], T: np.ndarray, depth: np.ndarray, K: np.ndarray) -> None:
-        keep = []
-        for t in self.tracks:
-            if t.id not in matched:
-                prims = t.primitives()
-                parts = [(p.center, p.size, p.rotation) for p in prims] or [(t.center, t.size, t.rotation)]
-                empty = seen_empty(parts, T, depth, K, self._empty)
-                if empty is True:
-                    t.empty_streak += 1
-                elif empty is False:
-                    t.empty_streak = 0
-                if t.empty_streak >= self.config.delete_misses:
-                    log.debug("scene map: track %d seen empty, removed", t.id)
-                    continue
-            keep.append(t)
-        self.tracks = keep
+        missed = [t for t in self.tracks if t.id not in matched]
+        parts = [[(q.center, q.size, q.rotation) for q in t.primitives()] or [(t.center, t.size, t.rotation)]
+                 for t in missed]
+        gone = set()
+        for t, empty in zip(missed, seen_empty_many(parts, T, depth, K, self._empty)):
+            if empty is True:
+                t.empty_streak += 1
+            elif empty is False:
+                t.empty_streak = 0
+            if t.empty_streak >= self.config.delete_misses:
+                log.debug("scene map: track %d seen empty, removed", t.id)
+                gone.add(t.id)
+        self.tracks = [t for t in self.tracks if t.id not in gone]
 
     def _age(self, matched: set[int]) -> None:
         for t in self.tracks:

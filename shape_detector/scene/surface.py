@@ -22,7 +22,9 @@ from ..geometry import points_in_box
 
 _BITS = 21  # per axis: +-2**20 voxels (+-21 km at 2 cm) packed into one int64 key
 _OFF = 1 << (_BITS - 1)
-_MASK = (1 << _BITS) - 1
+#: points held back before they are merged into the memory: at least the first, at most the
+#: second (40 bytes each), else twice the voxels held
+PENDING_MIN, PENDING_MAX = 100_000, 500_000
 
 
 def voxel_keys(ijk: np.ndarray) -> np.ndarray:
@@ -56,28 +58,34 @@ class SurfaceMemory:
         p = p[np.all(np.isfinite(p), axis=1)]
         if len(p) == 0:
             return
-        keys, inv = np.unique(voxel_keys(np.floor(p / self.voxel)), return_inverse=True)
-        inv = inv.ravel()
-        sums = np.stack([np.bincount(inv, p[:, k], len(keys)) for k in range(3)], axis=1) * weight
-        counts = np.bincount(inv, minlength=len(keys)).astype(np.int64) * weight
-        self._pending.append((keys, sums, counts))
-        self._pending_rows += len(keys)
-        if self._pending_rows > max(50_000, self._keys.size // 2):
-            self._consolidate()  # amortised: a merge costs about as much as the rows it adds
+        w = int(weight)
+        self._pending.append((voxel_keys(np.floor(p / self.voxel)), p * w if w != 1 else p, np.full(len(p), w)))
+        self._pending_rows += len(p)
+        # a merge passes over the whole memory: batching the points keeps its cost per point small
+        if self._pending_rows > max(PENDING_MIN, min(2 * self._keys.size, PENDING_MAX)):
+            self._consolidate()
 
     def _consolidate(self) -> None:
         if not self._pending:
             return
-        keys = np.concatenate([self._keys] + [k for k, _, _ in self._pending])
-        sums = np.concatenate([self._sums] + [s for _, s, _ in self._pending])
-        counts = np.concatenate([self._counts] + [c for _, _, c in self._pending])
+        keys, pts, weights = (np.concatenate([blk[i] for blk in self._pending]) for i in range(3))
         self._pending, self._pending_rows = [], 0
-        uk, inv = np.unique(keys, return_inverse=True)
+        keys, inv = np.unique(keys, return_inverse=True)
         inv = inv.ravel()
-        self._sums = np.stack([np.bincount(inv, sums[:, k], len(uk)) for k in range(3)], axis=1)
-        self._counts = np.bincount(inv, counts, len(uk)).astype(np.int64)
-        self._keys = uk
-        if uk.size > self.max_voxels:
+        sums = np.stack([np.bincount(inv, pts[:, k], len(keys)) for k in range(3)], axis=1)
+        counts = np.bincount(inv, weights, len(keys)).astype(np.int64)
+        # merge into the sorted keys held: known voxels add up in place, new ones are inserted
+        # where they belong (no sort of the whole memory)
+        pos = np.searchsorted(self._keys, keys)
+        known = pos < self._keys.size
+        known[known] = self._keys[pos[known]] == keys[known]
+        self._sums[pos[known]] += sums[known]
+        self._counts[pos[known]] += counts[known]
+        new = ~known
+        self._keys = np.insert(self._keys, pos[new], keys[new])
+        self._sums = np.insert(self._sums, pos[new], sums[new], axis=0)
+        self._counts = np.insert(self._counts, pos[new], counts[new])
+        if self._keys.size > self.max_voxels:
             keep = np.sort(np.argsort(-self._counts, kind="stable")[: self.max_voxels])
             self._keys, self._sums, self._counts = self._keys[keep], self._sums[keep], self._counts[keep]
 

@@ -62,38 +62,52 @@ def unit_lattice(n: int) -> np.ndarray:
 def part_samples(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]], n: int = 3) -> np.ndarray:
     """World points (P * n**3, 3) on an ``n``-lattice inside each (center, size, rotation) part
     (at the centres of an ``n`` x ``n`` x ``n`` split of the part)."""
-    g = unit_lattice(n)
-    out = [np.asarray(c, float) + (g * np.asarray(s, float)) @ np.asarray(R, float).T for c, s, R in parts]
-    return np.concatenate(out) if out else np.zeros((0, 3))
+    if not parts:
+        return np.zeros((0, 3))
+    c, s, R = (np.asarray([part[i] for part in parts], dtype=np.float64) for i in range(3))
+    # point j of part i: c_i + R_i (g_j * s_i)
+    return (c[:, None, :] + np.einsum("pab,pjb->pja", R, unit_lattice(n)[None] * s[:, None, :])).reshape(-1, 3)
 
 
-def classify_samples(world: np.ndarray, T_world_camera: np.ndarray, depth: np.ndarray, K: np.ndarray,
-                     p: EmptyParams) -> tuple[int, int, int]:
-    """(in view, seen through, surface) counts of the world points ``world`` (N,3)."""
+def sample_states(world: np.ndarray, T_world_camera: np.ndarray, depth: np.ndarray, K: np.ndarray,
+                  p: EmptyParams) -> tuple[np.ndarray, np.ndarray]:
+    """Per world point (N,3): (in view with a valid depth, seen through) as bool arrays (N,)."""
     T = np.asarray(T_world_camera, dtype=np.float64)
     cam = (np.asarray(world, dtype=np.float64) - T[:3, 3]) @ T[:3, :3]
     z = cam[:, 2]
     front = (z > 0.1) & (z < p.max_range)
-    if not front.any():
-        return 0, 0, 0
-    cam, z = cam[front], z[front]
-    d = measured_depth(cam, depth, K)
-    known = np.isfinite(d)
-    tol = p.margin + p.margin_per_m * z
-    free = known & (d > z + tol)
-    surface = known & (np.abs(d - z) <= tol)
-    return int(known.sum()), int(free.sum()), int(surface.sum())
+    known = np.zeros(len(z), bool)
+    free = np.zeros(len(z), bool)
+    if front.any():
+        d = measured_depth(cam[front], depth, K)
+        known[front] = np.isfinite(d)
+        with np.errstate(invalid="ignore"):
+            free[front] = d > z[front] + p.margin + p.margin_per_m * z[front]
+    return known, free
+
+
+def seen_empty_many(tracks_parts: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]],
+                    T_world_camera: np.ndarray, depth: np.ndarray, K: np.ndarray,
+                    params: EmptyParams | None = None) -> list[bool | None]:
+    """:func:`seen_empty` of several objects' parts at once (one projection for all)."""
+    p = params or EmptyParams()
+    per = len(unit_lattice(p.lattice))
+    counts = np.array([len(parts) * per for parts in tracks_parts], np.int64)
+    if counts.sum() == 0:
+        return [None] * len(tracks_parts)
+    known, free = sample_states(part_samples([q for parts in tracks_parts for q in parts], p.lattice),
+                                T_world_camera, depth, K, p)
+    owner = np.repeat(np.arange(len(counts)), counts)
+    n_view = np.bincount(owner, known, len(counts))
+    n_free = np.bincount(owner, free, len(counts))
+    out: list[bool | None] = []
+    for n, v, f in zip(counts, n_view, n_free):
+        out.append(None if n == 0 or v < p.min_in_view * n else bool(f >= p.min_free and f >= p.free_share * v))
+    return out
 
 
 def seen_empty(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]], T_world_camera: np.ndarray,
                depth: np.ndarray, K: np.ndarray, params: EmptyParams | None = None) -> bool | None:
     """True when the parts' space is seen empty in this frame, False when in view and not
     empty, None when not in view (see the module docstring)."""
-    p = params or EmptyParams()
-    pts = part_samples(parts, p.lattice)
-    if len(pts) == 0:
-        return None
-    n_view, n_free, _ = classify_samples(pts, T_world_camera, depth, K, p)
-    if n_view < p.min_in_view * len(pts):
-        return None
-    return bool(n_free >= p.min_free and n_free >= p.free_share * n_view)
+    return seen_empty_many([parts], T_world_camera, depth, K, params)[0]
