@@ -99,3 +99,21 @@ def test_compiled_slab_test_matches_a_plain_one_and_skips_bad_rays() -> None:
     assert np.all(np.einsum("ij,ij->i", normal[hit], d[hit]) < 0)  # the face entered faces the ray
     bad = raycast_many(sc, [[np.nan, 0.0, 2.0], [0.0, 0.0, 2.0]], [[0.0, 0.0, -1.0], [np.inf, 0.0, 0.0]])
     assert not bad.hit.any() and np.all(bad.object_id == -1)
+
+
+def test_a_batch_split_over_two_threads_gives_the_serial_answers(monkeypatch) -> None:
+    import shape_detector.ar.row_split as row_split
+    from shape_detector.ar.bench import bench_scene
+
+    scene = bench_scene(n_objects=8)  # primitives, observed surfaces and structure
+    rng = np.random.default_rng(4)
+    o = np.column_stack([rng.uniform(0, 10, (400, 2)), rng.uniform(1.2, 1.8, 400)])
+    d = np.array([scene.objects[k].center for k in rng.integers(0, len(scene.objects), 400)]) - o
+    monkeypatch.setattr(row_split, "usable_cores", lambda: 1)
+    serial = raycast_many(scene, o, d)
+    monkeypatch.setattr(row_split, "usable_cores", lambda: 2)
+    monkeypatch.setattr(row_split, "MIN_ROWS", 2)
+    split = raycast_many(scene, o, d)
+    assert serial.hit.sum() > 200
+    for field in ("distance", "object_id", "normal", "box_index"):
+        np.testing.assert_array_equal(getattr(serial, field), getattr(split, field))

@@ -11,6 +11,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from .row_split import run_rows
+
 
 def first_boxes(o: np.ndarray, d: np.ndarray, centers: np.ndarray, half: np.ndarray, rot: np.ndarray,
                 max_distance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -21,9 +23,10 @@ def first_boxes(o: np.ndarray, d: np.ndarray, centers: np.ndarray, half: np.ndar
     n = len(o)
     dist, best, normal = np.full(n, np.inf), np.full(n, -1, np.int64), np.zeros((n, 3))
     if len(centers):
-        _first_boxes(np.ascontiguousarray(o, np.float64), np.ascontiguousarray(d, np.float64),
-                     np.ascontiguousarray(centers, np.float64), np.ascontiguousarray(half, np.float64),
-                     np.ascontiguousarray(rot, np.float64), float(max_distance), dist, best, normal)
+        o, d = np.ascontiguousarray(o, np.float64), np.ascontiguousarray(d, np.float64)
+        boxes = tuple(np.ascontiguousarray(a, np.float64) for a in (centers, half, rot))
+        run_rows(lambda a, b: _first_boxes(o[a:b], d[a:b], *boxes, float(max_distance), dist[a:b], best[a:b],
+                                           normal[a:b]), n)
     return dist, best, normal
 
 

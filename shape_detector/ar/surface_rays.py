@@ -25,6 +25,8 @@ import numba
 import numpy as np
 from scipy import ndimage
 
+from .row_split import run_rows
+
 #: objects whose surface grid would exceed this many cells are left to their primitives
 MAX_CELLS = 8_000_000
 _PASSES = 6  # shells met without a surface in the tube, before a ray gives up on a grid
@@ -114,10 +116,15 @@ def cast(index: SurfaceIndex, o: np.ndarray, d: np.ndarray, limit: np.ndarray, t
     n = len(o)
     dist, best_k, normal = np.full(n, np.inf), np.full(n, -1, np.int64), np.zeros((n, 3))
     window = _window(index)
-    _cast_rays(np.ascontiguousarray(o, np.float64), np.ascontiguousarray(d, np.float64),
-               np.ascontiguousarray(limit, np.float64), float(t_min), index.cell, index.frames, index.qlo, index.qhi,
-               index.lo, index.shape, index.offset, index.point_at, index.shell, index.points, index.tube,
-               index.cluster, float(window[0]), len(window), _PASSES, dist, best_k, normal)
+    o, d = np.ascontiguousarray(o, np.float64), np.ascontiguousarray(d, np.float64)
+    limit = np.ascontiguousarray(limit, np.float64)
+
+    def rows(a: int, b: int) -> None:
+        _cast_rays(o[a:b], d[a:b], limit[a:b], float(t_min), index.cell, index.frames, index.qlo, index.qhi,
+                   index.lo, index.shape, index.offset, index.point_at, index.shell, index.points, index.tube,
+                   index.cluster, float(window[0]), len(window), _PASSES, dist[a:b], best_k[a:b], normal[a:b])
+
+    run_rows(rows, n)
     oid = np.where(best_k >= 0, index.object_ids[np.maximum(best_k, 0)], -1)
     return dist, oid, normal
 
