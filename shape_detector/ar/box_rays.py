@@ -24,8 +24,8 @@ def first_boxes(o: np.ndarray, d: np.ndarray, centers: np.ndarray, half: np.ndar
     dist, best, normal = np.full(n, np.inf), np.full(n, -1, np.int64), np.zeros((n, 3))
     if len(centers):
         o, d = np.ascontiguousarray(o, np.float64), np.ascontiguousarray(d, np.float64)
-        boxes = tuple(np.ascontiguousarray(a, np.float64) for a in (centers, half, rot))
-        run_rows(lambda a, b: _first_boxes(o[a:b], d[a:b], *boxes, float(max_distance), dist[a:b], best[a:b],
+        c, h, r = (np.ascontiguousarray(a, np.float64) for a in (centers, half, rot))
+        run_rows(lambda a, b: _first_boxes(o[a:b], d[a:b], c, h, r, float(max_distance), dist[a:b], best[a:b],
                                            normal[a:b]), n)
     return dist, best, normal
 
