@@ -105,7 +105,7 @@ class FloorMemory:
     def add(self, xy: np.ndarray) -> None:
         """Mark the cells of floor points ``xy`` (N,2, world metres) as seen."""
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-        xy = xy[np.all(np.isfinite(xy), axis=1)]
+        xy = np.compress(np.isfinite(xy).all(axis=1), xy, axis=0)
         if len(xy) == 0:
             return
         rc = np.floor(xy[:, ::-1] / self.resolution).astype(np.int64)
@@ -185,7 +185,7 @@ def floor_cells_seen(depth: np.ndarray, K: np.ndarray, T_world_camera: np.ndarra
     d = measured_depth(cam, depth, K, min_z=0.1)
     with np.errstate(invalid="ignore"):
         seen = np.isfinite(d) & (np.abs(d - z) <= band + 0.01 * z)
-    return pw[seen, :2]
+    return np.compress(seen, pw[:, :2], axis=0)
 
 
 def depth_points_world(depth: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray, stride: int = 4,
@@ -195,8 +195,9 @@ def depth_points_world(depth: np.ndarray, K: np.ndarray, T_world_camera: np.ndar
     with np.errstate(invalid="ignore"):
         ok = (d > 0) & (d < max_range)  # NaN compares False
     rx, ry = _pixel_rays(depth.shape, stride, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
-    z = d[ok].astype(np.float64)
-    cam = np.stack([rx[ok] * z, ry[ok] * z, z], axis=1)
+    idx = np.flatnonzero(ok)
+    z = d.ravel()[idx].astype(np.float64)
+    cam = np.stack([rx.ravel()[idx] * z, ry.ravel()[idx] * z, z], axis=1)
     T = np.asarray(T_world_camera, dtype=np.float64)
     return cam @ T[:3, :3].T + T[:3, 3]
 

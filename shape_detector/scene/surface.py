@@ -55,7 +55,7 @@ class SurfaceMemory:
         """Add world points (N,3); non-finite rows are ignored. ``weight``: how many
         observations each point stands for (1 for depth samples)."""
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        p = p[np.all(np.isfinite(p), axis=1)]
+        p = np.compress(np.isfinite(p).all(axis=1), p, axis=0)
         if len(p) == 0:
             return
         w = int(weight)
