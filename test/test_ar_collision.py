@@ -64,3 +64,24 @@ def test_bad_input() -> None:
         collides(sc, [0.0, 0.0], 0.1)
     with pytest.raises(ValueError):
         collides(sc, [0.0, 0.0, 0.0], -0.1)
+
+
+def test_observed_surface_inside_the_box_collides_where_the_primitives_fall_short() -> None:
+    from dataclasses import replace
+
+    # the depth saw an apron 4 cm under the table top (x, y in [-0.3, 0.3], z = 0.66), which
+    # the fused primitives miss; and a wall point beside the table, outside its box
+    xs = np.arange(-0.3, 0.31, 0.02)
+    apron = np.array([[x, y, 0.66] for x in xs for y in xs])
+    wall = np.array([[0.0, 0.48, 0.6]])
+    sc = ArScene([replace(table(3, (0.0, 0.0)), surface=np.concatenate([apron, wall]))])
+    below = [0.0, 0.0, 0.58]  # 8 cm under the apron, 12 cm under the top primitive
+    assert collides(sc, below, radius=0.1)
+    assert not collides(sc, below, radius=0.1, surfaces=False)
+    assert not collides(sc, below, radius=0.07)
+    assert contacts(sc, [below], radius=0.1) == [(3, -1)]
+    assert contacts(sc, [below], radius=0.1, surfaces=False) == []
+    beside = [0.0, 0.4, 0.6]  # 8 cm from the wall point, which the table's box does not hold
+    assert not collides(sc, beside, radius=0.1)
+    got = collides_many(sc, [below, beside, [0.0, 0.0, 0.72], [np.nan, 0.0, 0.5]], radius=0.1)
+    assert got.tolist() == [True, False, True, False]

@@ -4,6 +4,11 @@ World frame, metres. A broad phase hashes the boxes' world AABBs (grown by the r
 square floor cells; each point is tested exactly (oriented-box distance) only against the
 boxes of its own cell, so a batch of thousands of points costs about as much as the pairs
 near furniture.
+
+With ``surfaces`` (the default) a sphere also collides with an object where it comes within
+``radius`` of the object's observed surface points inside its box (``ArScene.contact_points``):
+the depth measured the object there, where its fused box and primitives may fall a few
+centimetres short.
 """
 
 from __future__ import annotations
@@ -118,34 +123,58 @@ def touching_pairs(scene: ArScene | Any, points: np.ndarray, radius: float) -> t
     return pi[keep], bi[keep]
 
 
-def collides_many(scene: ArScene | Any, points: np.ndarray, radius: float = 0.0) -> np.ndarray:
-    """(N,) bool: does a sphere of ``radius`` (m) at each world point touch any primitive?
-    Non-finite points never collide."""
-    pts, _ = _check(points, radius)
+def surface_contacts(scene: ArScene | Any, points: np.ndarray, radius: float) -> np.ndarray:
+    """(N,) the id of an object whose observed surface points (inside its box) lie within
+    ``radius`` (m) of each point, -1 where none does or the scene has none."""
+    scene = load_scene(scene)
+    pts, r = _check(points, radius)
+    index = scene.contact_points
+    if index is None or len(pts) == 0:
+        return np.full(len(pts), -1, np.int64)
+    from .surface_contacts import nearest_owner
+
+    return nearest_owner(index, pts, r)
+
+
+def collides_many(scene: ArScene | Any, points: np.ndarray, radius: float = 0.0, surfaces: bool = True) -> np.ndarray:
+    """(N,) bool: does a sphere of ``radius`` (m) at each world point touch any primitive (or,
+    with ``surfaces``, come within ``radius`` of an object's observed surface)? Non-finite
+    points never collide."""
+    scene = load_scene(scene)
+    pts, r = _check(points, radius)
     out = np.zeros(len(pts), dtype=bool)
-    pi, _ = touching_pairs(scene, pts, radius)
+    pi, _ = touching_pairs(scene, pts, r)
     out[pi] = True
+    if surfaces and scene.contact_points is not None:
+        rest = np.flatnonzero(~out)
+        out[rest] = surface_contacts(scene, pts[rest], r) >= 0
     return out
 
 
-def collides(scene: ArScene | Any, point: np.ndarray, radius: float = 0.0) -> bool:
-    """Does a sphere of ``radius`` (m) at the world ``point`` (3,) touch any primitive?"""
+def collides(scene: ArScene | Any, point: np.ndarray, radius: float = 0.0, surfaces: bool = True) -> bool:
+    """Does a sphere of ``radius`` (m) at the world ``point`` (3,) touch any primitive (or, with
+    ``surfaces``, an object's observed surface)?"""
     p = np.asarray(point, dtype=np.float64).reshape(-1)
     if p.shape != (3,):
         raise ValueError(f"point must have 3 coordinates, got {p.shape}")
-    return bool(collides_many(scene, p[None], radius)[0])
+    return bool(collides_many(scene, p[None], radius, surfaces)[0])
 
 
-def contacts(scene: ArScene | Any, points: np.ndarray, radius: float = 0.0) -> list[tuple[int, int]]:
+def contacts(scene: ArScene | Any, points: np.ndarray, radius: float = 0.0,
+             surfaces: bool = True) -> list[tuple[int, int]]:
     """Distinct ``(object_id, primitive_index)`` the spheres touch, sorted; ``primitive_index``
-    is -1 for an object without primitives (its box was tested)."""
+    is -1 for an object without primitives (its box was tested) and, with ``surfaces``, for an
+    object touched only at its observed surface."""
     scene = load_scene(scene)
-    _, bi = touching_pairs(scene, points, radius)
-    if len(bi) == 0:
-        return []
+    pts, r = _check(points, radius)
+    pi, bi = touching_pairs(scene, pts, r)
     b = scene.boxes
-    pairs = np.unique(np.stack([b.object_ids[bi], b.prim_index[bi]], axis=1), axis=0)
-    return [(int(o), int(i)) for o, i in pairs]
+    pairs = {(int(o), int(i)) for o, i in zip(b.object_ids[bi], b.prim_index[bi])}
+    if surfaces:
+        touched = set(np.unique(b.object_ids[bi]).tolist())
+        found = surface_contacts(scene, pts, r)
+        pairs |= {(int(o), -1) for o in np.unique(found[found >= 0]) if int(o) not in touched}
+    return sorted(pairs)
 
 
 def distance_to_scene(scene: ArScene | Any, points: np.ndarray, max_distance: float = 1.0) -> np.ndarray:

@@ -45,17 +45,19 @@ class SceneQueries:
         """The floor grid (None: the scene has none)."""
         return self.scene.grid
 
-    def collides(self, point: np.ndarray, radius: float = 0.0) -> bool:
-        """Does a sphere (world centre (3,), ``radius`` m) touch any furniture primitive?"""
-        return collision.collides(self.scene, point, radius)
+    def collides(self, point: np.ndarray, radius: float = 0.0, surfaces: bool = True) -> bool:
+        """Does a sphere (world centre (3,), ``radius`` m) touch any furniture primitive (or,
+        with ``surfaces``, the furniture's observed surface)?"""
+        return collision.collides(self.scene, point, radius, surfaces)
 
-    def collides_many(self, points: np.ndarray, radius: float = 0.0) -> np.ndarray:
+    def collides_many(self, points: np.ndarray, radius: float = 0.0, surfaces: bool = True) -> np.ndarray:
         """(N,) bool for spheres at ``points`` (N,3)."""
-        return collision.collides_many(self.scene, points, radius)
+        return collision.collides_many(self.scene, points, radius, surfaces)
 
-    def contacts(self, points: np.ndarray, radius: float = 0.0) -> list[tuple[int, int]]:
-        """Distinct (object_id, primitive_index) touched by spheres at ``points`` (N,3)."""
-        return collision.contacts(self.scene, points, radius)
+    def contacts(self, points: np.ndarray, radius: float = 0.0, surfaces: bool = True) -> list[tuple[int, int]]:
+        """Distinct (object_id, primitive_index) touched by spheres at ``points`` (N,3); -1: the
+        object's box or observed surface."""
+        return collision.contacts(self.scene, points, radius, surfaces)
 
     def raycast(self, origin: np.ndarray, direction: np.ndarray, max_distance: float = np.inf,
                 surfaces: bool = True) -> RayHit | None:

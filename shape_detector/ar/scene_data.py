@@ -29,6 +29,9 @@ STRUCTURE_ID = -2
 #: the structure's points are indexed for ray casts in cubes of this size (metres), each
 #: bounded tightly, so that a wall does not span one huge grid
 STRUCTURE_BLOCK = 1.0
+#: an object's observed surface points count for collisions within its box grown by this
+#: much (metres): the points its box claims farther out are mostly the wall or floor beside it
+CONTACT_PAD = 0.02
 
 
 @dataclass
@@ -175,6 +178,25 @@ class ArScene:
         from .surface_rays import build_index
 
         return build_index(given)
+
+    @cached_property
+    def contact_points(self) -> Any:
+        """The objects' observed surface points inside their boxes grown by :data:`CONTACT_PAD`,
+        indexed for collision queries (:class:`~shape_detector.ar.surface_contacts.ContactIndex`,
+        built on first use), or None when there are none."""
+        from ..geometry import points_in_box
+
+        pts, ids = [], []
+        for o, s in zip(self.objects, self.surface_points):
+            if s is not None:
+                inside = s[points_in_box(s, o.center, np.abs(o.size), o.rotation, CONTACT_PAD)]
+                pts.append(inside)
+                ids.append(np.full(len(inside), o.id, np.int64))
+        if not sum(len(p) for p in pts):
+            return None  # without importing numba
+        from .surface_contacts import build_contact_index
+
+        return build_contact_index(np.concatenate(pts), np.concatenate(ids))
 
     def object(self, object_id: int) -> SceneObject | None:
         """The object with this track id, or None."""

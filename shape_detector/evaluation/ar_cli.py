@@ -111,7 +111,8 @@ def main(args: argparse.Namespace) -> int:
     print(f"map: {'true scene (--gt-map)' if args.gt_map else 'detector + SceneMap' + given}, {len(rows)} walk-throughs")
     for k, thr in THRESHOLDS.items():
         print(f"  {k:>30}: {mean[k]:.3f}  (>= {thr:.2f}: {'pass' if mean[k] >= thr else 'FAIL'})")
-    for k in ("ray_floor_within_5cm", "ray_within_5cm_primitives", "ray_median_err_cm", "plan_min_clearance_cm",
+    for k in ("ray_floor_within_5cm", "ray_within_5cm_primitives", "ray_median_err_cm", "collide_precision_primitives",
+              "collide_recall_primitives", "plan_min_clearance_cm",
               "plan_found_blocked", "plan_clear_blocked", "plan_min_clearance_cm_blocked",
               "surface_height_err_cm", "surface_within_2cm", "surface_matched", "surfaces", "objects_true",
               "objects_map"):

@@ -12,6 +12,7 @@ as a check of this code, the true scene) and are scored against the room's true 
   object rays' share without the observed surfaces (the primitives alone);
 * ``collide_precision`` / ``collide_recall`` -- ``collides`` (sphere of ``radius``) at random
   points within ``band`` of the parts of objects seen during the walk, against all true parts;
+  ``_primitives`` the same without the observed surfaces (the primitives alone);
 * ``plan_found`` -- pairs of random floor points free for the agent in the true footprint
   grid, both on floor the map saw, joined in the true grid: share the map's ``plan`` joins;
   ``plan_clear`` -- share of found paths keeping ``agent_radius - margin`` from every true
@@ -135,7 +136,8 @@ def collide_metric(truth: Truth, m: ArScene, seen_ids: set[int], n_points: int, 
     """``collides`` precision / recall near the seen objects (see the module doc)."""
     seen = ArScene([o for o in truth.objects.objects if o.id in seen_ids])
     if not seen.objects:
-        return {"collide_precision": float("nan"), "collide_recall": float("nan"), "collide_points": 0.0}
+        return {"collide_precision": float("nan"), "collide_recall": float("nan"), "collide_points": 0.0,
+                "collide_precision_primitives": float("nan"), "collide_recall_primitives": float("nan")}
     floor = truth.objects.floor_z
     k = rng.integers(0, len(seen.objects), 4 * n_points)
     c = np.array([seen.objects[i].center for i in k])
@@ -144,10 +146,13 @@ def collide_metric(truth: Truth, m: ArScene, seen_ids: set[int], n_points: int, 
     keep = (pts[:, 2] >= floor) & (distance_to_scene(seen, pts, 2 * band) <= band)
     pts = pts[keep][:n_points]
     want = collides_many(truth.objects, pts, radius)
-    got = collides_many(m, pts, radius)
-    tp = float(np.sum(want & got))
-    return {"collide_precision": tp / max(float(got.sum()), 1.0), "collide_recall": tp / max(float(want.sum()), 1.0),
-            "collide_points": float(len(pts)), "collide_positive_share": float(want.mean()) if len(pts) else 0.0}
+    out = {"collide_points": float(len(pts)), "collide_positive_share": float(want.mean()) if len(pts) else 0.0}
+    for suffix, observed in (("", True), ("_primitives", False)):
+        got = collides_many(m, pts, radius, surfaces=observed)
+        tp = float(np.sum(want & got))
+        out[f"collide_precision{suffix}"] = tp / max(float(got.sum()), 1.0)
+        out[f"collide_recall{suffix}"] = tp / max(float(want.sum()), 1.0)
+    return out
 
 
 def _free_points(mask: np.ndarray, grid: NavGrid, n: int, rng: np.random.Generator) -> np.ndarray:
