@@ -1,6 +1,6 @@
 """Which object's observed surface points lie within a radius of a point (world frame, metres).
 
-The points are bucketed in cubes of ``cell`` metres (sorted by cube key); a query looks in
+The points are bucketed in cubes of ``cell`` metres (sorted by the scene's voxel key); a query looks in
 the cubes within the radius of the point and stops at the first point within it. The loop is
 compiled with numba like :mod:`.surface_rays` (a query stops early, which array code cannot do
 without testing every nearby point), and a batch is split over two cores (:mod:`.row_split`).
@@ -13,10 +13,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from ..scene.surface import KEY_BITS, KEY_OFFSET, voxel_keys
 from .row_split import run_rows
-
-_BITS = 21  # per axis, as the scene's voxel keys: +-2**20 cubes
-_OFF = 1 << (_BITS - 1)
 
 
 @dataclass
@@ -32,19 +30,11 @@ class ContactIndex:
     lo: np.ndarray
     hi: np.ndarray
 
-    def __len__(self) -> int:
-        return int(len(self.points))
-
-
-def _keys(ijk: np.ndarray) -> np.ndarray:
-    q = ijk.astype(np.int64) + _OFF
-    return (q[:, 0] << (2 * _BITS)) | (q[:, 1] << _BITS) | q[:, 2]
-
 
 def build_contact_index(points: np.ndarray, ids: np.ndarray, cell: float = 0.1) -> ContactIndex:
     """A :class:`ContactIndex` of world ``points`` (M,3, finite) owned by objects ``ids`` (M,)."""
     p = np.asarray(points, np.float64).reshape(-1, 3)
-    key = _keys(np.floor(p / cell))
+    key = voxel_keys(np.floor(p / cell))
     order = np.argsort(key, kind="stable")
     key = key[order]
     first = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.zeros(0, np.int64)
@@ -79,7 +69,8 @@ def _owners(pts, r, reach, cell, points, ids, keys, starts, lo, hi, out):
         for di in range(-reach, reach + 1):
             for dj in range(-reach, reach + 1):
                 for dk in range(-reach, reach + 1):
-                    key = ((ci + di + _OFF) << (2 * _BITS)) | ((cj + dj + _OFF) << _BITS) | (ck + dk + _OFF)
+                    key = (((ci + di + KEY_OFFSET) << (2 * KEY_BITS)) | ((cj + dj + KEY_OFFSET) << KEY_BITS)
+                           | (ck + dk + KEY_OFFSET))
                     j = np.searchsorted(keys, key)
                     if j >= keys.shape[0] or keys[j] != key:
                         continue

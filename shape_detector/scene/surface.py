@@ -20,8 +20,10 @@ import numpy as np
 
 from ..geometry import points_in_box
 
-_BITS = 21  # per axis: +-2**20 voxels (+-21 km at 2 cm) packed into one int64 key
-_OFF = 1 << (_BITS - 1)
+#: bits per axis of a voxel key: +-2**20 voxels (+-21 km at 2 cm) packed into one int64
+KEY_BITS = 21
+#: added to each integer coordinate so that it is packed non-negative
+KEY_OFFSET = 1 << (KEY_BITS - 1)
 #: points held back before they are merged into the memory: at least the first, at most the
 #: second (40 bytes each), else twice the voxels held
 PENDING_MIN, PENDING_MAX = 100_000, 500_000
@@ -29,8 +31,8 @@ PENDING_MIN, PENDING_MAX = 100_000, 500_000
 
 def voxel_keys(ijk: np.ndarray) -> np.ndarray:
     """int64 keys of integer voxel coordinates ``ijk`` (N,3)."""
-    q = np.asarray(ijk, np.int64) + _OFF
-    return (q[:, 0] << (2 * _BITS)) | (q[:, 1] << _BITS) | q[:, 2]
+    q = np.asarray(ijk, np.int64) + KEY_OFFSET
+    return (q[:, 0] << (2 * KEY_BITS)) | (q[:, 1] << KEY_BITS) | q[:, 2]
 
 
 class SurfaceMemory:
