@@ -85,3 +85,24 @@ def test_observed_surface_inside_the_box_collides_where_the_primitives_fall_shor
     assert not collides(sc, beside, radius=0.1)
     got = collides_many(sc, [below, beside, [0.0, 0.0, 0.72], [np.nan, 0.0, 0.5]], radius=0.1)
     assert got.tolist() == [True, False, True, False]
+
+
+def test_surface_contacts_match_a_brute_force_search_at_any_radius() -> None:
+    from dataclasses import replace
+
+    from shape_detector.ar.collision import surface_contacts
+
+    rng = np.random.default_rng(7)
+    # points spread through each box (the chair's partly outside its turned box: not counted)
+    a = replace(box_object(4, "dresser", (0.0, 0.0, 0.5), (1.0, 0.5, 1.0)),
+                surface=rng.uniform(-0.5, 0.5, (400, 3)) * [1.0, 0.5, 1.0] + [0.0, 0.0, 0.5])
+    b = replace(box_object(9, "chair", (2.0, 0.0, 0.4), (0.5, 0.5, 0.8), yaw=0.5),
+                surface=rng.uniform(-0.25, 0.25, (300, 3)) * [1.0, 1.0, 1.6] + [2.0, 0.0, 0.4])
+    sc = ArScene([a, b])
+    pts = rng.uniform([-1.0, -1.0, -0.2], [3.0, 1.0, 1.5], (500, 3))
+    inside = sc.contact_points[0]
+    for r in (0.03, 0.1, 0.3, 1.2):
+        got = surface_contacts(sc, pts, r)
+        d = np.linalg.norm(pts[:, None] - inside[None], axis=2).min(axis=1)
+        assert np.array_equal(got >= 0, d <= r), r
+    assert set(surface_contacts(sc, pts, 0.3).tolist()) == {-1, 4, 9}

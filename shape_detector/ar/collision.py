@@ -22,6 +22,8 @@ from .scene_data import ArScene, BoxSet, load_scene
 
 #: side (m) of the broad-phase floor cells.
 CELL = 0.25
+#: side (m) of the cubes the observed surface points are bucketed in (at least the radius)
+CONTACT_CELL = 0.1
 
 
 def box_distances(points: np.ndarray, centers: np.ndarray, half: np.ndarray, rot: np.ndarray) -> np.ndarray:
@@ -128,12 +130,19 @@ def surface_contacts(scene: ArScene | Any, points: np.ndarray, radius: float) ->
     ``radius`` (m) of each point, -1 where none does or the scene has none."""
     scene = load_scene(scene)
     pts, r = _check(points, radius)
-    index = scene.contact_points
-    if index is None or len(pts) == 0:
+    if scene.contact_points is None or len(pts) == 0:
         return np.full(len(pts), -1, np.int64)
-    from .surface_contacts import nearest_owner
+    from .surface_contacts import build_contact_index, nearest_owner
 
-    return nearest_owner(index, pts, r)
+    # cubes at least as large as the radius: a query looks into 27 of them, whatever the radius
+    cell = max(CONTACT_CELL, r)
+    cache: dict[float, Any] = scene.__dict__.setdefault("_contact_index", {})
+    key = round(cell, 6)
+    if key not in cache:
+        if len(cache) > 4:
+            cache.clear()
+        cache[key] = build_contact_index(*scene.contact_points, cell=cell)
+    return nearest_owner(cache[key], pts, r)
 
 
 def collides_many(scene: ArScene | Any, points: np.ndarray, radius: float = 0.0, surfaces: bool = True) -> np.ndarray:

@@ -180,10 +180,10 @@ class ArScene:
         return build_index(given)
 
     @cached_property
-    def contact_points(self) -> Any:
+    def contact_points(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The objects' observed surface points inside their boxes grown by :data:`CONTACT_PAD`,
-        indexed for collision queries (:class:`~shape_detector.ar.surface_contacts.ContactIndex`,
-        built on first use), or None when there are none."""
+        for collision queries: ((M,3) world points, (M,) their object ids), or None when there
+        are none."""
         from ..geometry import points_in_box
 
         pts, ids = [], []
@@ -193,10 +193,8 @@ class ArScene:
                 pts.append(inside)
                 ids.append(np.full(len(inside), o.id, np.int64))
         if not sum(len(p) for p in pts):
-            return None  # without importing numba
-        from .surface_contacts import build_contact_index
-
-        return build_contact_index(np.concatenate(pts), np.concatenate(ids))
+            return None
+        return np.concatenate(pts), np.concatenate(ids)
 
     def object(self, object_id: int) -> SceneObject | None:
         """The object with this track id, or None."""

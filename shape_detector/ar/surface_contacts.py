@@ -31,7 +31,7 @@ class ContactIndex:
     hi: np.ndarray
 
 
-def build_contact_index(points: np.ndarray, ids: np.ndarray, cell: float = 0.1) -> ContactIndex:
+def build_contact_index(points: np.ndarray, ids: np.ndarray, cell: float) -> ContactIndex:
     """A :class:`ContactIndex` of world ``points`` (M,3, finite) owned by objects ``ids`` (M,)."""
     p = np.asarray(points, np.float64).reshape(-1, 3)
     key = voxel_keys(np.floor(p / cell))
@@ -48,7 +48,8 @@ def build_contact_index(points: np.ndarray, ids: np.ndarray, cell: float = 0.1) 
 
 def nearest_owner(index: ContactIndex, points: np.ndarray, radius: float) -> np.ndarray:
     """(N,) the object id of a point of ``index`` within ``radius`` (m) of each world point
-    (N,3), -1 where none is (or the point is not finite)."""
+    (N,3), -1 where none is (or the point is not finite). Looks into (2 ceil(radius / cell) +
+    1)**3 cubes a point: keep the cubes at least as large as the radius."""
     pts = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
     out = np.full(len(pts), -1, np.int64)
     reach = int(np.ceil(radius / index.cell))
