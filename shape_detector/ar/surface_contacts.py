@@ -69,25 +69,22 @@ def _owners(pts, r, reach, cell, points, ids, keys, starts, lo, hi, out):
         found = -1
         for di in range(-reach, reach + 1):
             for dj in range(-reach, reach + 1):
-                for dk in range(-reach, reach + 1):
-                    key = (((ci + di + KEY_OFFSET) << (2 * KEY_BITS)) | ((cj + dj + KEY_OFFSET) << KEY_BITS)
-                           | (ck + dk + KEY_OFFSET))
-                    j = np.searchsorted(keys, key)
-                    if j >= keys.shape[0] or keys[j] != key:
-                        continue
+                # the cubes of one (i, j) column are consecutive keys: one search, then a walk up
+                column = ((ci + di + KEY_OFFSET) << (2 * KEY_BITS)) | ((cj + dj + KEY_OFFSET) << KEY_BITS)
+                last = column | (ck + reach + KEY_OFFSET)
+                j = np.searchsorted(keys, column | (ck - reach + KEY_OFFSET))
+                while j < keys.shape[0] and keys[j] <= last and found < 0:
                     gap = 0.0
                     for a, v in ((0, x), (1, y), (2, z)):
                         g = max(lo[j, a] - v, v - hi[j, a], 0.0)
                         gap += g * g
-                    if gap > r2:
-                        continue
-                    for q in range(starts[j], starts[j + 1]):
-                        dx, dy, dz = points[q, 0] - x, points[q, 1] - y, points[q, 2] - z
-                        if dx * dx + dy * dy + dz * dz <= r2:
-                            found = ids[q]
-                            break
-                    if found >= 0:
-                        break
+                    if gap <= r2:
+                        for q in range(starts[j], starts[j + 1]):
+                            dx, dy, dz = points[q, 0] - x, points[q, 1] - y, points[q, 2] - z
+                            if dx * dx + dy * dy + dz * dz <= r2:
+                                found = ids[q]
+                                break
+                    j += 1
                 if found >= 0:
                     break
             if found >= 0:
