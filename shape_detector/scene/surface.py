@@ -115,12 +115,19 @@ def split_points(points: np.ndarray, boxes: Sequence[Any], pad: float = 0.05) ->
     clutter, furniture not mapped yet)."""
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     taken = np.zeros(len(p), bool)
+    # sorted by x once (the memory's points nearly are: its keys are x-major), each box then
+    # looks only at the slab of points within its x extent
+    order = np.argsort(p[:, 0], kind="stable")
+    xs = p[order, 0]
     out = []
     for b in boxes:
         R = np.asarray(b.rotation, np.float64)
+        c = np.asarray(b.center, np.float64)
         ext = np.abs(R) @ (0.5 * np.abs(np.asarray(b.size, np.float64)) + pad)  # world half extents: a cheap pre-filter
-        near = np.flatnonzero(~taken & np.all(np.abs(p - np.asarray(b.center, np.float64)) <= ext, axis=1))
-        inside = near[points_in_box(p[near], b.center, np.abs(np.asarray(b.size, np.float64)), R, pad)]
+        slab = order[np.searchsorted(xs, c[0] - ext[0], "left"):np.searchsorted(xs, c[0] + ext[0], "right")]
+        slab = slab[~taken[slab]]
+        near = slab[np.all(np.abs(p[slab] - c) <= ext, axis=1)]
+        inside = np.sort(near[points_in_box(p[near], c, np.abs(np.asarray(b.size, np.float64)), R, pad)])
         taken[inside] = True
         out.append(p[inside])
     return out, p[~taken]
