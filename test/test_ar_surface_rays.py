@@ -227,3 +227,21 @@ def test_structure_survives_the_json_round_trip(tmp_path) -> None:
         load_scene(bad)
     old = {k: v for k, v in doc.items() if k != "structure"}  # a map written before structure
     assert load_scene(old).structure_points is None
+
+
+def test_split_points_gives_each_point_to_the_first_box_holding_it() -> None:
+    from shape_detector.geometry import points_in_box
+    from shape_detector.scene.surface import split_points
+
+    rng = np.random.default_rng(5)
+    boxes = [box_object(i + 1, "table", rng.uniform(-2, 2, 3), rng.uniform(0.3, 1.5, 3), yaw=rng.uniform(0, np.pi))
+             for i in range(12)]
+    pts = rng.uniform(-3, 3, (5000, 3))
+    per_box, rest = split_points(pts, boxes, pad=0.05)
+    owner = np.full(len(pts), -1)
+    for k, b in reversed(list(enumerate(boxes))):  # the first box that holds a point wins
+        owner[points_in_box(pts, b.center, b.size, b.rotation, 0.05)] = k
+    for k, got in enumerate(per_box):
+        np.testing.assert_array_equal(got, pts[owner == k])  # in the input's order
+    np.testing.assert_array_equal(rest, pts[owner < 0])
+    assert (owner >= 0).sum() > 200
