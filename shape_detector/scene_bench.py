@@ -7,7 +7,8 @@ and 95th percentile of: the update without depth (association, fusion, merging),
 update with depth (plus negative evidence, the floor and the observed surfaces), the floor
 integration alone (the grid's depth part) without and with the observed surfaces, building
 the grid and listing the objects with their observed surfaces (for JSON and ray casts) when
-asked.
+asked. The listing runs on a second map fed the same frames: it merges the surface memory's
+pending points, whose cost belongs to the update.
 """
 
 from __future__ import annotations
