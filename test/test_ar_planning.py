@@ -141,3 +141,23 @@ def test_traversable_and_visibility() -> None:
     m = traversable(g, 0.2)
     assert m[10, 10] and not m[10, 37] and not m[10, 40] and m[10, 46]  # 0.2 m margin at 5 cm cells
     assert visible(m, np.array([10, 10]), np.array([[10, 30], [10, 50]])).tolist() == [True, False]
+
+
+def test_a_doubtful_track_is_crossed_only_where_nothing_else_gets_through() -> None:
+    from dataclasses import replace
+
+    from ar_scenes import box_object
+
+    from shape_detector.ar.margins import DOUBT_SCORE
+
+    g = wall_grid(gap=True)  # the opening: y in [1.5, 2.5] at x = 2
+    g.data[30:50, 40:42] = 100  # filled by an object's footprint
+    chair = box_object(5, "chair", (2.05, 2.0, 0.4), (0.1, 1.0, 0.8))
+    sure, doubtful = replace(chair, score=0.9), replace(chair, score=DOUBT_SCORE - 0.05)
+    assert plan(ArScene([sure], g), (1.0, 0.5), (3.0, 0.5)) is None
+    path = plan(ArScene([doubtful], g), (1.0, 0.5), (3.0, 0.5))
+    assert path is not None and 1.5 < max(y for _, y in path) < 2.5  # through the doubtful track
+    assert plan(ArScene([doubtful], g), (1.0, 0.5), (3.0, 0.5), squeeze=0.0) is None
+    g.data[60:75, 40:42] = 0  # a second opening, 1.5 m further up
+    detour = np.array(plan(ArScene([doubtful], g), (1.0, 0.5), (3.0, 0.5)))
+    assert detour[:, 1].max() > 3.0  # around the doubtful track where the map allows it

@@ -10,6 +10,10 @@ passages beside them stay open.
 It applies only to an object whose whole box footprint is occupied in the grid
 (:data:`BLOCKING_SHARE` of its cells), i.e. one that blocks the agent over its whole extent.
 A table above a small robot, whose grid cells are only its legs, keeps the space under it.
+
+A track the map doubts (score below :data:`DOUBT_SCORE`: mostly clutter and second tracks of
+one object) still blocks plans, but :func:`without_doubtful` gives the grid in which a plan
+may cross it where nothing else gets through (the planner's squeeze, :mod:`.planning`).
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..scene.grid import OCCUPIED, NavGrid, footprint_mask
+from ..scene.grid import OCCUPIED, UNKNOWN, NavGrid, footprint_mask
 from ..scene.types import SceneObject
 
 #: standard deviations of a face's spread added to it by default (0 = no margins)
@@ -27,6 +31,8 @@ UNCERTAINTY = 0.5
 MAX_MARGIN = 0.10
 #: share of an object's box footprint cells that must be occupied for its margins to apply
 BLOCKING_SHARE = 0.8
+#: objects scored below this are doubtful (see the module doc)
+DOUBT_SCORE = 0.6
 
 
 def padded_grid(grid: NavGrid, objects: Sequence[SceneObject], uncertainty: float = UNCERTAINTY,
@@ -59,4 +65,29 @@ def padded_grid(grid: NavGrid, objects: Sequence[SceneObject], uncertainty: floa
         out[rs, cs][m] = OCCUPIED
     if out is None:
         return grid
+    return NavGrid(grid.resolution, grid.origin.copy(), out, grid.floor_z)
+
+
+def _footprints(grid: NavGrid, o: SceneObject) -> list[tuple[slice, slice, np.ndarray]]:
+    """The grid windows under an object's parts (its box when it has none)."""
+    parts = [(p.center, p.size, p.rotation) for p in o.primitives] or [(o.center, o.size, o.rotation)]
+    return [w for c, sz, R in parts if (w := footprint_mask(grid, c, sz, R)) is not None]
+
+
+def without_doubtful(grid: NavGrid, objects: Sequence[SceneObject], min_score: float = DOUBT_SCORE) -> NavGrid:
+    """A copy of ``grid`` whose occupied cells under the parts of objects scored below
+    ``min_score``, and under no other object's, are unknown; ``grid`` itself when there are none."""
+    doubtful = [o for o in objects if o.score < min_score]
+    if not doubtful or grid.data.size == 0:
+        return grid
+    sure = np.zeros(grid.data.shape, bool)
+    for o in objects:
+        if o.score >= min_score:
+            for rs, cs, m in _footprints(grid, o):
+                sure[rs, cs] |= m
+    out = grid.data.copy()
+    for o in doubtful:
+        for rs, cs, m in _footprints(grid, o):
+            window = out[rs, cs]
+            window[m & (window == OCCUPIED) & ~sure[rs, cs]] = UNKNOWN
     return NavGrid(grid.resolution, grid.origin.copy(), out, grid.floor_z)

@@ -17,8 +17,9 @@ col = x. What unknown cells mean is a choice (``unknown``):
 
 Traversable cells keep the radius (and the margins of :mod:`.margins`) from every blocked
 cell. Where no such path exists, a plan may *squeeze*: pass up to :data:`SQUEEZE` closer to
-the map's obstacles, without the margins, at :data:`SQUEEZE_COST` times the length, so a
-narrow passage that boxes a few centimetres too large close stays usable, and only where it
+the map's obstacles, without the margins and through the tracks the map doubts
+(:func:`.margins.without_doubtful`), at :data:`SQUEEZE_COST` times the length, so a
+narrow passage that boxes a few centimetres too large, or a doubtful track, close stays usable, and only where it
 is needed (a costmap's lethal core with a costly band around it, as in nav2). Steps within
 :data:`COMFORT` beyond the full clearance cost more, up to :data:`COMFORT_COST` times more at
 its inner edge (nav2's inflation cost), so plans keep to the middle of a passage where there
@@ -38,7 +39,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from ..scene.grid import NavGrid
-from .margins import UNCERTAINTY, padded_grid
+from .margins import UNCERTAINTY, padded_grid, without_doubtful
 from .scene_data import as_grid, load_scene
 
 FREE_MAX = 50  # cells with values in [0, FREE_MAX) count as free (nav_msgs convention)
@@ -266,7 +267,7 @@ def nav_graph(grid: NavGrid, agent_radius: float, unknown: str = "interior", bas
               squeeze: float = SQUEEZE) -> CellGraph:
     """The navigation graph of a grid for a disc of ``agent_radius`` m: the cells with the
     full clearance in ``grid``, plus (at :data:`SQUEEZE_COST`) those ``squeeze`` m closer to
-    the obstacles of ``base`` (the grid without margins; default ``grid``)."""
+    the obstacles of ``base`` (the grid without margins or doubtful tracks; default ``grid``)."""
     if not (np.isfinite(squeeze) and squeeze >= 0.0):
         raise ValueError(f"squeeze={squeeze} must be finite and >= 0 (metres)")
     free, cost = walkable(grid, unknown)
@@ -299,14 +300,15 @@ def default_snap(agent_radius: float) -> float:
 
 def planning_grids(scene_or_grid: Any, uncertainty: float = UNCERTAINTY) -> tuple[NavGrid, NavGrid]:
     """``(padded, base)``: the grid plans keep the full clearance on (a scene's grid with the
-    margins of :mod:`.margins` around its objects) and the grid itself (a bare grid: both)."""
+    margins of :mod:`.margins` around its objects) and the grid a squeeze may use (the scene's
+    grid without its doubtful tracks, :func:`.margins.without_doubtful`; a bare grid: both)."""
     if isinstance(scene_or_grid, NavGrid) or hasattr(scene_or_grid, "resolution"):
         grid = as_grid(scene_or_grid)
         return grid, grid
     scene = load_scene(scene_or_grid)
     if scene.grid is None:
         raise ValueError("the scene has no navigation grid")
-    return padded_grid(scene.grid, scene.objects, uncertainty), scene.grid
+    return padded_grid(scene.grid, scene.objects, uncertainty), without_doubtful(scene.grid, scene.objects)
 
 
 def plan(scene_or_grid: Any, start_xy: np.ndarray, goal_xy: np.ndarray, agent_radius: float = 0.2,
