@@ -18,9 +18,10 @@ col = x. What unknown cells mean is a choice (``unknown``):
 Traversable cells keep the radius (and the margins of :mod:`.margins`) from every blocked
 cell. Where no such path exists, a plan may *squeeze*: pass up to :data:`SQUEEZE` closer to
 the map's obstacles, without the margins and through the tracks the map doubts
-(:func:`.margins.without_doubtful`), at :data:`SQUEEZE_COST` times the length, so a
-narrow passage that boxes a few centimetres too large, or a doubtful track, close stays usable, and only where it
-is needed (a costmap's lethal core with a costly band around it, as in nav2). Steps within
+(:func:`.margins.without_doubtful`), at :data:`SQUEEZE_COST` times the length. A narrow
+passage that boxes a few centimetres too large close, or that a doubtful track closes, stays
+usable, and only where it is needed (a costmap's lethal core with a costly band around it, as
+in nav2). Steps within
 :data:`COMFORT` beyond the full clearance cost more, up to :data:`COMFORT_COST` times more at
 its inner edge (nav2's inflation cost), so plans keep to the middle of a passage where there
 is room. The search is Dijkstra on the 8-connected cell graph (scipy's compiled graph search);
