@@ -10,12 +10,11 @@
 
 from __future__ import annotations
 
-import os
-
 import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+from .model.devices import usable_cores
 from .settings import Spec, check, coerce, setting, specs
 
 PROPOSAL_SOURCES = ("geometric", "learned", "hybrid", "external", "onnx")
@@ -114,8 +113,7 @@ def resolved_workers(workers: int, pipelined: bool = False) -> int:
         return int(workers)
     if pipelined:
         return 1
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return 2 if cores >= 2 else 1
+    return 2 if usable_cores() >= 2 else 1
 
 def detector_specs() -> dict[str, Spec]:
     """name -> :class:`~shape_detector.settings.Spec` of every detector setting."""

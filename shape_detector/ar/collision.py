@@ -13,6 +13,7 @@ centimetres short.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -72,14 +73,20 @@ def _build_hash(b: BoxSet, radius: float) -> _CellHash:
     return _CellHash(origin, nx, ny, np.cumsum(count) - count, count, own[order])
 
 
-def _hash_for(scene: ArScene, radius: float) -> _CellHash:
-    cache: dict[float, _CellHash] = scene.__dict__.setdefault("_collision_hash", {})
-    key = round(float(radius), 6)
+def _per_size(scene: ArScene, name: str, size: float, build: Callable[[], Any]) -> Any:
+    """``build()``'s result cached on ``scene`` under ``name`` per ``size`` (a radius or a cube
+    side, metres; a few sizes kept)."""
+    cache: dict[float, Any] = scene.__dict__.setdefault(name, {})
+    key = round(float(size), 6)
     if key not in cache:
         if len(cache) > 8:
             cache.clear()
-        cache[key] = _build_hash(scene.boxes, radius)
+        cache[key] = build()
     return cache[key]
+
+
+def _hash_for(scene: ArScene, radius: float) -> _CellHash:
+    return _per_size(scene, "_collision_hash", radius, lambda: _build_hash(scene.boxes, radius))
 
 
 def _candidates(scene: ArScene, pts: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray]:
@@ -136,13 +143,8 @@ def surface_contacts(scene: ArScene | Any, points: np.ndarray, radius: float) ->
 
     # cubes at least as large as the radius: a query looks into 27 of them, whatever the radius
     cell = max(CONTACT_CELL, r)
-    cache: dict[float, Any] = scene.__dict__.setdefault("_contact_index", {})
-    key = round(cell, 6)
-    if key not in cache:
-        if len(cache) > 4:
-            cache.clear()
-        cache[key] = build_contact_index(*scene.contact_points, cell=cell)
-    return nearest_owner(cache[key], pts, r)
+    index = _per_size(scene, "_contact_index", cell, lambda: build_contact_index(*scene.contact_points, cell=cell))
+    return nearest_owner(index, pts, r)
 
 
 def collides_many(scene: ArScene | Any, points: np.ndarray, radius: float = 0.0, surfaces: bool = True) -> np.ndarray:

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..scene.grid import OCCUPIED, UNKNOWN, NavGrid, footprint_mask
-from ..scene.types import SceneObject
+from ..scene.types import SceneObject, object_parts
 
 #: standard deviations of a face's spread added to it by default (0 = no margins)
 UNCERTAINTY = 0.5
@@ -70,8 +70,7 @@ def padded_grid(grid: NavGrid, objects: Sequence[SceneObject], uncertainty: floa
 
 def _footprints(grid: NavGrid, o: SceneObject) -> list[tuple[slice, slice, np.ndarray]]:
     """The grid windows under an object's parts (its box when it has none)."""
-    parts = [(p.center, p.size, p.rotation) for p in o.primitives] or [(o.center, o.size, o.rotation)]
-    return [w for c, sz, R in parts if (w := footprint_mask(grid, c, sz, R)) is not None]
+    return [w for p in object_parts(o) if (w := footprint_mask(grid, p.center, p.size, p.rotation)) is not None]
 
 
 def without_doubtful(grid: NavGrid, objects: Sequence[SceneObject], min_score: float = DOUBT_SCORE) -> NavGrid:

@@ -11,16 +11,13 @@ import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
+from ..model.devices import usable_cores
+
 #: rows below which a batch runs in the calling thread
 MIN_ROWS = 128
 
 _pool: ThreadPoolExecutor | None = None
 _pool_pid = 0
-
-
-def usable_cores() -> int:
-    """Cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def run_rows(fn: Callable[[int, int], None], n: int, min_rows: int | None = None) -> None:

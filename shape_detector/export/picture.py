@@ -17,7 +17,8 @@ import numpy as np
 from ..ar.affordances import surfaces
 from ..ar.scene_data import ArScene, load_scene
 from ..geometry import box_corners
-from .scene_export import object_name, object_parts
+from ..scene.types import object_parts
+from .scene_export import object_name
 
 AFFORDANCE_BGR = {"sit": (40, 160, 255), "lie": (200, 60, 200), "place": (60, 200, 60)}
 _BG = (255, 255, 255)

@@ -24,7 +24,7 @@ import trimesh
 from trimesh.visual.material import PBRMaterial
 
 from ..ar.scene_data import ArScene, load_scene
-from ..scene.types import SceneObject, ScenePrimitive
+from ..scene.types import SceneObject, object_parts
 from ..classes import class_color
 
 #: world (z up) -> glTF (y up): x -> x, y -> -z, z -> y.
@@ -55,11 +55,6 @@ def _material(class_name: str) -> PBRMaterial:
     r, g, b = class_color(class_name)
     return PBRMaterial(name=class_name, baseColorFactor=[int(255 * r), int(255 * g), int(255 * b), 255],
                        metallicFactor=0.0, roughnessFactor=0.8)
-
-
-def object_parts(o: SceneObject) -> list[ScenePrimitive]:
-    """The object's primitives, or its own box when it has none."""
-    return o.primitives or [ScenePrimitive(o.center, o.size, o.rotation)]
 
 
 def object_name(o: SceneObject) -> str:

@@ -1,7 +1,9 @@
-"""Which device and arithmetic a forward runs on: CUDA or CPU, bfloat16 on CPUs with AMX."""
+"""Which device and arithmetic a forward runs on: CUDA or CPU, bfloat16 on CPUs with AMX; how
+many CPU cores this process may use."""
 
 from __future__ import annotations
 
+import os
 from typing import TYPE_CHECKING, Any
 
 from .config import PRECISIONS
@@ -44,3 +46,8 @@ def resolve_device(device: str | torch.device | None) -> torch.device:
     if device is None or str(device) == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(device)
+
+
+def usable_cores() -> int:
+    """CPU cores this process may run on (its affinity where the OS tells, else all)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)

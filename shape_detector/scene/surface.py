@@ -46,7 +46,7 @@ class SurfaceMemory:
         self._keys = np.zeros(0, np.int64)
         self._sums = np.zeros((0, 3))
         self._counts = np.zeros(0, np.int64)
-        self._pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._pending: list[tuple[np.ndarray, np.ndarray, int]] = []  # keys, weighted points, weight
         self._pending_rows = 0
 
     def __len__(self) -> int:
@@ -57,11 +57,12 @@ class SurfaceMemory:
         """Add world points (N,3); non-finite rows are ignored. ``weight``: how many
         observations each point stands for (1 for depth samples)."""
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        p = np.compress(np.isfinite(p).all(axis=1), p, axis=0)
+        p = np.compress(np.isfinite(p).all(axis=1), p, axis=0)  # a copy: weighted in place below
         if len(p) == 0:
             return
-        w = int(weight)
-        self._pending.append((voxel_keys(np.floor(p / self.voxel)), p * w if w != 1 else p, np.full(len(p), w)))
+        keys = voxel_keys(np.floor(p / self.voxel))
+        p *= int(weight)
+        self._pending.append((keys, p, int(weight)))
         self._pending_rows += len(p)
         # a merge passes over the whole memory: batching the points keeps its cost per point small
         if self._pending_rows > max(PENDING_MIN, min(2 * self._keys.size, PENDING_MAX)):
@@ -70,7 +71,8 @@ class SurfaceMemory:
     def _consolidate(self) -> None:
         if not self._pending:
             return
-        keys, pts, weights = (np.concatenate([blk[i] for blk in self._pending]) for i in range(3))
+        keys, pts = (np.concatenate([blk[i] for blk in self._pending]) for i in range(2))
+        weights = np.repeat([w for _, _, w in self._pending], [len(k) for k, _, _ in self._pending])
         self._pending, self._pending_rows = [], 0
         keys, inv = np.unique(keys, return_inverse=True)
         inv = inv.ravel()

@@ -92,6 +92,11 @@ class SceneObject:
                    class_probs={str(k): float(v) for k, v in d.get("class_probs", {}).items()})
 
 
+def object_parts(o: SceneObject) -> list[ScenePrimitive]:
+    """The object's primitives, or its own box when it has none."""
+    return o.primitives or [ScenePrimitive(o.center, o.size, o.rotation)]
+
+
 def surface_to_dict(points: np.ndarray, center: np.ndarray) -> dict:
     """The ``"surface"`` entry: points as millimetre offsets from the object's centre, int16
     little-endian x y z per point, base64 (a room's surfaces in a few hundred kB)."""
