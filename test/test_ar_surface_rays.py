@@ -68,6 +68,34 @@ def test_memory_merged_in_batches_keeps_every_voxel_mean(monkeypatch: pytest.Mon
     assert len(mem.points(min_count=3)) == int(np.sum(counts >= 3))
 
 
+def test_memory_sorted_runs_merge_like_one_pass(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Frames of negative and positive coordinates, empty and all-NaN frames and reads between
+    merges: the memory holds what one pass over every finite point gives."""
+    import shape_detector.scene.surface as surface
+
+    monkeypatch.setattr(surface, "PENDING_MIN", 300)
+    rng = np.random.default_rng(11)
+    mem = SurfaceMemory(0.05)
+    kept = []
+    for i in range(40):
+        p = rng.normal(0.0, 0.4, (rng.integers(0, 250), 3)) + rng.uniform(-3.0, 3.0, 3)
+        if i % 7 == 3:
+            p[::3] = np.nan
+        if i % 11 == 5:
+            p = np.full((10, 3), np.inf)
+        mem.add(p)
+        kept.append(p[np.isfinite(p).all(axis=1)])
+        if i % 13 == 0:
+            assert len(mem.points()) == len(np.unique(np.floor(np.concatenate(kept) / 0.05), axis=0))
+    allp = np.concatenate(kept)
+    keys, inv, counts = np.unique(np.floor(allp / 0.05).astype(np.int64), axis=0, return_inverse=True,
+                                  return_counts=True)
+    means = np.stack([np.bincount(inv.ravel(), allp[:, k]) for k in range(3)], axis=1) / counts[:, None]
+    got = mem.points()
+    np.testing.assert_allclose(got[np.lexsort(got.T[::-1])], means[np.lexsort(means.T[::-1])], atol=1e-9)
+    assert sorted(mem.counts().tolist()) == sorted(counts.tolist())
+
+
 def test_memory_bound_drops_the_least_seen_voxels() -> None:
     mem = SurfaceMemory(0.1, max_voxels=2)
     for _ in range(3):

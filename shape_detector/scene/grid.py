@@ -17,10 +17,10 @@ the world (x, y) of the outer corner of cell (row 0, col 0).
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from ..geometry import measured_depth
@@ -190,26 +190,30 @@ def floor_cells_seen(depth: np.ndarray, K: np.ndarray, T_world_camera: np.ndarra
 
 def depth_points_world(depth: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray, stride: int = 4,
                        max_range: float = 6.0) -> np.ndarray:
-    """World points (N,3) of every ``stride``-th pixel with valid depth below ``max_range``."""
-    d = np.asarray(depth, dtype=np.float32)[::stride, ::stride]
-    with np.errstate(invalid="ignore"):
-        ok = (d > 0) & (d < max_range)  # NaN compares False
-    rx, ry = _pixel_rays(depth.shape, stride, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
-    idx = np.flatnonzero(ok)
-    z = d.ravel()[idx].astype(np.float64)
-    cam = np.stack([rx.ravel()[idx] * z, ry.ravel()[idx] * z, z], axis=1)
-    T = np.asarray(T_world_camera, dtype=np.float64)
-    return cam @ T[:3, :3].T + T[:3, 3]
+    """World points (N,3) of every ``stride``-th pixel (row-major) with valid depth (metres)
+    below ``max_range``; ``K`` the depth's intrinsics, ``T_world_camera`` the optical frame's pose."""
+    d = np.asarray(depth, dtype=np.float32)
+    T = np.ascontiguousarray(T_world_camera, dtype=np.float64)
+    s = max(int(stride), 1)
+    out = np.empty((-(-d.shape[0] // s) * -(-d.shape[1] // s), 3))
+    n = _depth_points(d, s, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), T, float(max_range), out)
+    return out[:n]
 
 
-@functools.lru_cache(maxsize=8)
-def _pixel_rays(shape: tuple[int, ...], stride: int, fx: float, fy: float, cx: float,
-                cy: float) -> tuple[np.ndarray, np.ndarray]:
-    """(x / z, y / z) of the strided pixels of an image of ``shape`` (read-only, cached per camera)."""
-    v, u = np.mgrid[0:shape[0]:stride, 0:shape[1]:stride]
-    rx, ry = (u - cx) / fx, (v - cy) / fy
-    rx.flags.writeable = ry.flags.writeable = False
-    return rx, ry
+@numba.njit(cache=True, nogil=True)
+def _depth_points(depth, stride, fx, fy, cx, cy, T, max_range, out):  # pragma: no cover - compiled
+    """:func:`depth_points_world` into ``out``; returns the number of points."""
+    n = 0
+    for v in range(0, depth.shape[0], stride):
+        ry = (v - cy) / fy
+        for u in range(0, depth.shape[1], stride):
+            z = np.float64(depth[v, u])
+            if z > 0.0 and z < max_range:  # NaN compares False
+                x, y = (u - cx) / fx * z, ry * z
+                for a in range(3):
+                    out[n, a] = T[a, 0] * x + T[a, 1] * y + T[a, 2] * z + T[a, 3]
+                n += 1
+    return n
 
 
 def estimate_floor_z(z: np.ndarray, bin_m: float = 0.02, min_share: float = 0.03) -> float | None:

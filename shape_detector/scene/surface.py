@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import numba
 import numpy as np
 
 from ..geometry import points_in_box
@@ -24,8 +25,8 @@ from ..geometry import points_in_box
 KEY_BITS = 21
 #: added to each integer coordinate so that it is packed non-negative
 KEY_OFFSET = 1 << (KEY_BITS - 1)
-#: points held back before they are merged into the memory: at least the first, at most the
-#: second (40 bytes each), else twice the voxels held
+#: frames' voxels held back before they are merged into the memory: at least the first, at
+#: most the second (40 bytes each), else twice the voxels held
 PENDING_MIN, PENDING_MAX = 100_000, 500_000
 
 
@@ -46,8 +47,13 @@ class SurfaceMemory:
         self._keys = np.zeros(0, np.int64)
         self._sums = np.zeros((0, 3))
         self._counts = np.zeros(0, np.int64)
-        self._pending: list[tuple[np.ndarray, np.ndarray, int]] = []  # keys, weighted points, weight
-        self._pending_rows = 0
+        # frames' voxels not merged yet: sorted runs one after another in growing buffers (kept
+        # between merges: fresh large arrays cost page faults on every frame)
+        self._run_keys = np.zeros(0, np.int64)
+        self._run_sums = np.zeros((0, 3))
+        self._run_counts = np.zeros(0, np.int64)
+        self._run_starts = [0]
+        self._scratch = np.zeros((2, 0), np.int64)  # one frame's keys and rows
 
     def __len__(self) -> int:
         self._consolidate()
@@ -56,39 +62,34 @@ class SurfaceMemory:
     def add(self, points: np.ndarray, weight: int = 1) -> None:
         """Add world points (N,3); non-finite rows are ignored. ``weight``: how many
         observations each point stands for (1 for depth samples)."""
-        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        p = np.compress(np.isfinite(p).all(axis=1), p, axis=0)  # a copy: weighted in place below
-        if len(p) == 0:
+        p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        at = self._run_starts[-1]
+        if at + len(p) > self._run_keys.size:
+            cap = max(2 * self._run_keys.size, at + len(p), 1024)
+            self._run_keys = np.resize(self._run_keys, cap)
+            self._run_sums = np.resize(self._run_sums, (cap, 3))
+            self._run_counts = np.resize(self._run_counts, cap)
+        if len(p) > self._scratch.shape[1]:
+            self._scratch = np.empty((2, len(p)), np.int64)
+        keys, rows = self._scratch
+        n = _frame_keys(p, self.voxel, keys, rows)
+        # one frame's points are few enough to sort in cache; a merge then only streams
+        order = np.argsort(keys[:n], kind="stable")
+        end = _write_run(keys, rows, order, p, int(weight), self._run_keys, self._run_sums, self._run_counts, at)
+        if end == at:
             return
-        keys = voxel_keys(np.floor(p / self.voxel))
-        p *= int(weight)
-        self._pending.append((keys, p, int(weight)))
-        self._pending_rows += len(p)
-        # a merge passes over the whole memory: batching the points keeps its cost per point small
-        if self._pending_rows > max(PENDING_MIN, min(2 * self._keys.size, PENDING_MAX)):
+        self._run_starts.append(end)
+        # a merge passes over the whole memory: batching the runs keeps its cost per point small
+        if end > max(PENDING_MIN, min(2 * self._keys.size, PENDING_MAX)):
             self._consolidate()
 
     def _consolidate(self) -> None:
-        if not self._pending:
+        if len(self._run_starts) == 1:
             return
-        keys, pts = (np.concatenate([blk[i] for blk in self._pending]) for i in range(2))
-        weights = np.repeat([w for _, _, w in self._pending], [len(k) for k, _, _ in self._pending])
-        self._pending, self._pending_rows = [], 0
-        keys, inv = np.unique(keys, return_inverse=True)
-        inv = inv.ravel()
-        sums = np.stack([np.bincount(inv, pts[:, k], len(keys)) for k in range(3)], axis=1)
-        counts = np.bincount(inv, weights, len(keys)).astype(np.int64)
-        # merge into the sorted keys held: known voxels add up in place, new ones are inserted
-        # where they belong (no sort of the whole memory)
-        pos = np.searchsorted(self._keys, keys)
-        known = pos < self._keys.size
-        known[known] = self._keys[pos[known]] == keys[known]
-        self._sums[pos[known]] += sums[known]
-        self._counts[pos[known]] += counts[known]
-        new = ~known
-        self._keys = np.insert(self._keys, pos[new], keys[new])
-        self._sums = np.insert(self._sums, pos[new], sums[new], axis=0)
-        self._counts = np.insert(self._counts, pos[new], counts[new])
+        starts = np.asarray(self._run_starts, np.int64)
+        self._run_starts = [0]
+        self._keys, self._sums, self._counts = _merge_runs(self._keys, self._sums, self._counts, self._run_keys,
+                                                           self._run_sums, self._run_counts, starts)
         if self._keys.size > self.max_voxels:
             keep = np.sort(np.argsort(-self._counts, kind="stable")[: self.max_voxels])
             self._keys, self._sums, self._counts = self._keys[keep], self._sums[keep], self._counts[keep]
@@ -103,6 +104,110 @@ class SurfaceMemory:
         """(M,) how many points fell into each voxel (same order as :meth:`points`)."""
         self._consolidate()
         return self._counts.copy()
+
+
+@numba.njit(cache=True, nogil=True)
+def _frame_keys(points, voxel, keys, rows):  # pragma: no cover - compiled
+    """:func:`voxel_keys` of the finite rows of ``points`` (N,3) into ``keys``, those rows' indices into
+    ``rows``; returns how many."""
+    j = 0
+    for i in range(points.shape[0]):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        if np.isfinite(x) and np.isfinite(y) and np.isfinite(z):
+            qx = np.int64(np.floor(x / voxel)) + KEY_OFFSET
+            qy = np.int64(np.floor(y / voxel)) + KEY_OFFSET
+            qz = np.int64(np.floor(z / voxel)) + KEY_OFFSET
+            keys[j] = (qx << (2 * KEY_BITS)) | (qy << KEY_BITS) | qz
+            rows[j] = i
+            j += 1
+    return j
+
+
+@numba.njit(cache=True, nogil=True)
+def _write_run(keys, rows, order, points, weight, out_k, out_s, out_c, at):  # pragma: no cover - compiled
+    """Write one sorted run into the buffers from row ``at``: the distinct ``keys`` in the
+    ascending ``order``, with the sums of their ``points[rows]`` and their counts, each point
+    standing for ``weight``. Returns the row after the run."""
+    m = at - 1
+    for t in range(order.shape[0]):
+        k = keys[order[t]]
+        if m < at or k != out_k[m]:
+            m += 1
+            out_k[m] = k
+            out_s[m, 0] = out_s[m, 1] = out_s[m, 2] = 0.0
+            out_c[m] = 0
+        r = rows[order[t]]
+        for a in range(3):
+            out_s[m, a] += weight * points[r, a]
+        out_c[m] += weight
+    return m + 1
+
+
+@numba.njit(cache=True, nogil=True)
+def _merge_runs(mem_k, mem_s, mem_c, keys, sums, counts, starts):  # pragma: no cover - compiled
+    """The sorted memory (``mem_*``) and the sorted runs ``keys[starts[r]:starts[r + 1]]`` (with
+    their sums and counts) merged into one sorted run, equal keys added up: a k-way merge over
+    a heap of the runs' heads, so every row is read once, in order."""
+    nr = starts.shape[0] - 1
+    total = mem_k.shape[0] + starts[nr]
+    out_k = np.empty(total, np.int64)
+    out_s = np.empty((total, 3))
+    out_c = np.empty(total, np.int64)
+    # stream nr is the memory; heap entries are streams ordered by their head key
+    pos = np.empty(nr + 1, np.int64)
+    end = np.empty(nr + 1, np.int64)
+    pos[:nr], end[:nr] = starts[:nr], starts[1:]
+    pos[nr], end[nr] = 0, mem_k.shape[0]
+    heap = np.empty(nr + 1, np.int64)
+    head = np.empty(nr + 1, np.int64)
+    h = 0
+    for r in range(nr + 1):
+        if pos[r] < end[r]:
+            k = mem_k[pos[r]] if r == nr else keys[pos[r]]
+            i = h  # sift up
+            h += 1
+            while i > 0 and head[(i - 1) // 2] > k:
+                heap[i], head[i] = heap[(i - 1) // 2], head[(i - 1) // 2]
+                i = (i - 1) // 2
+            heap[i], head[i] = r, k
+    m = -1
+    while h > 0:
+        r, k = heap[0], head[0]
+        p = pos[r]
+        if m < 0 or out_k[m] != k:
+            m += 1
+            out_k[m] = k
+            out_s[m, 0] = out_s[m, 1] = out_s[m, 2] = 0.0
+            out_c[m] = 0
+        if r == nr:
+            for a in range(3):
+                out_s[m, a] += mem_s[p, a]
+            out_c[m] += mem_c[p]
+        else:
+            for a in range(3):
+                out_s[m, a] += sums[p, a]
+            out_c[m] += counts[p]
+        pos[r] = p + 1
+        if pos[r] < end[r]:
+            k = mem_k[p + 1] if r == nr else keys[p + 1]
+        else:  # stream done: the last heap entry takes its place
+            h -= 1
+            r, k = heap[h], head[h]
+        i = 0  # sift down
+        while True:
+            c = 2 * i + 1
+            if c >= h:
+                break
+            if c + 1 < h and head[c + 1] < head[c]:
+                c += 1
+            if head[c] >= k:
+                break
+            heap[i], head[i] = heap[c], head[c]
+            i = c
+        if h > 0:
+            heap[i], head[i] = r, k
+    n = m + 1
+    return out_k[:n].copy(), out_s[:n].copy(), out_c[:n].copy()
 
 
 def points_in_boxes(points: np.ndarray, boxes: Sequence[Any], pad: float = 0.05) -> list[np.ndarray]:
