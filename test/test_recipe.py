@@ -316,11 +316,11 @@ def test_a_spent_time_budget_stops_before_the_next_phase(tmp_path):
                      "--max-minutes", "0", "--device", "cpu"]) == 3
 
 
-@pytest.mark.parametrize("name", ["shipped", "collapsed"])
-def test_every_phase_of_a_packaged_recipe_can_start_from_its_parent(name):
+@pytest.mark.parametrize("name, width", [("shipped", 1.0), ("collapsed", 1.0), ("half_width", 0.5)])
+def test_every_phase_of_a_packaged_recipe_can_start_from_its_parent(name, width):
     """Each network phase of a packaged recipe accepts its parent's network (branches it adds
     start as no-ops, nothing else differs) and names parts its network has; the network it
-    exports is the shipped architecture."""
+    exports is the shipped architecture, every layer at ``width`` times the shipped width."""
     from shape_detector.model.network import FrustumShapeNet
     from shape_detector.training.init_from import freeze, load_init
 
@@ -340,5 +340,10 @@ def test_every_phase_of_a_packaged_recipe_can_start_from_its_parent(name):
     # the exported network is the shipped architecture
     from shape_detector.model.config import ModelConfig
 
-    final = rcp.phase_train_config(r, rcp.phase(r, r["exports"]["default.pt"])).model_config()
-    assert final.to_dict() == ModelConfig().to_dict()
+    final = rcp.phase_train_config(r, rcp.phase(r, r["exports"]["default.pt"])).model_config().to_dict()
+    shipped = ModelConfig().to_dict()
+    for k, v in shipped.items():
+        if k.endswith(("widths", "_fc")):
+            assert final[k] == [int(w * width) for w in v], k
+        else:
+            assert final[k] == v, k
