@@ -337,7 +337,7 @@ def test_every_phase_of_a_packaged_recipe_can_start_from_its_parent(name, width)
         if cfg.trainable:
             assert freeze(net, cfg.trainable), ph["name"]
         nets[ph["name"]] = net
-    # the exported network is the shipped architecture
+    # the exported network is the shipped architecture at `width`
     from shape_detector.model.config import ModelConfig
 
     final = rcp.phase_train_config(r, rcp.phase(r, r["exports"]["default.pt"])).model_config().to_dict()
