@@ -129,13 +129,14 @@ def estimate_up(
     sub = (slice(None, None, 2), slice(None, None, 2)) if grid.valid.size >= 4 * 4800 else (slice(None), slice(None))
     f = 4 if sub[0].step else 1
     nmask = grid.nvalid[sub]
-    N = grid.normals[sub][nmask]
+    # float64 once: every product with a float64 axis below would convert them again
+    N = grid.normals[sub][nmask].astype(np.float64)
     if N.shape[0] * f < 30:
         return fallback
-    P = grid.pmean[sub][nmask]
+    P = grid.pmean[sub][nmask].astype(np.float64)
     n_valid = int(np.count_nonzero(grid.valid))
     Ns = N
-    Pc = grid.points[sub][grid.valid[sub]]
+    Pc = grid.points[sub][grid.valid[sub]].astype(np.float64)
     if f > 1:  # thresholds in full-grid points -> this subsample
         cfg = replace(
             cfg,

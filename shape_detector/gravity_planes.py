@@ -154,9 +154,23 @@ def _extent(Q: np.ndarray, u: np.ndarray) -> tuple[float, float]:
         return 0.0, 0.0
     R = upright_rotation(u)
     ab = Q @ R[:, :2]
-    lo, hi = np.percentile(ab, [5, 95], axis=0)
+    lo, hi = _percentiles_5_95(ab)
     ea, eb = float(hi[0] - lo[0]), float(hi[1] - lo[1])
     return max(ea, eb), min(ea, eb)
+
+
+def _percentiles_5_95(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.percentile(a, [5, 95], axis=0)`` (linear interpolation) of ``a`` (n, k), n >= 1,
+    by one partial sort: several times faster for the few thousand rows of a plane."""
+    n = len(a)
+    out = []
+    pos = (0.05 * (n - 1), 0.95 * (n - 1))
+    lows = [int(p) for p in pos]
+    part = np.partition(a, sorted({k for lo in lows for k in (lo, min(lo + 1, n - 1))}), axis=0)
+    for p, lo in zip(pos, lows):
+        below, above = part[lo], part[min(lo + 1, n - 1)]
+        out.append(below + (above - below) * (p - lo))
+    return out[0], out[1]
 
 
 def _curvature(Q: np.ndarray, NQ: np.ndarray, u: np.ndarray) -> float:

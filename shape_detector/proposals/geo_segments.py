@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 
 from ..gravity import DepthGrid
+from ..grid_kernels import link_features
 from ..gravity_grid import work_array
 
 if TYPE_CHECKING:
@@ -16,13 +17,6 @@ if TYPE_CHECKING:
 
 #: one grid link direction: (jump, curvature, known, slice_a, slice_b), see ``Segmenter._link_features``
 LinkFeatures = tuple[np.ndarray, np.ndarray, np.ndarray, tuple[slice, slice], tuple[slice, slice]]
-
-
-def _pad0(a: np.ndarray, pad: int) -> np.ndarray:
-    """``np.pad(a, pad)`` (zeros around a 2D array) without its per-call overhead."""
-    out = np.zeros((a.shape[0] + 2 * pad, a.shape[1] + 2 * pad), a.dtype)
-    out[pad : pad + a.shape[0], pad : pad + a.shape[1]] = a
-    return out
 
 
 class Segmenter:
@@ -42,48 +36,10 @@ class Segmenter:
         cfg = self.config
         h, w = valid.shape
         nv = grid.rvalid & valid
-        cos_g = np.float32(np.cos(np.radians(cfg.graze_deg)))
-        pad = 3
-        Pc = [np.ascontiguousarray(P[..., i]) for i in range(3)]
-        Nc = [np.ascontiguousarray(grid.rnormals[..., i]) for i in range(3)]
-        Ppad = [_pad0(a, pad) for a in Pc]
-        Npad = [_pad0(a, pad) for a in Nc]
-        nvp = _pad0(nv, pad)
-        rn = np.sqrt(Pc[0] * Pc[0] + Pc[1] * Pc[1] + Pc[2] * Pc[2]) + np.float32(1e-6)
-        jthr = cfg.jump_abs + cfg.jump_rel * Pc[2]
-        out = []
-        for axis in (1, 0):
-            if axis == 1:
-                sa, sb = (slice(None), slice(0, w - 1)), (slice(None), slice(1, w))
-                oa = (slice(pad, pad + h), slice(pad - 2, pad - 2 + w - 1))
-                ob = (slice(pad, pad + h), slice(pad + 3, pad + 3 + w - 1))
-            else:
-                sa, sb = (slice(0, h - 1), slice(None)), (slice(1, h), slice(None))
-                oa = (slice(pad - 2, pad - 2 + h - 1), slice(pad, pad + w))
-                ob = (slice(pad + 3, pad + 3 + h - 1), slice(pad, pad + w))
-            d = [c[sb] - c[sa] for c in Pc]
-            dist = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) + np.float32(1e-6)
-            along = np.abs(d[0] * Pc[0][sa] + d[1] * Pc[1][sa] + d[2] * Pc[2][sa]) / (dist * rn[sa])
-            za = Pc[2][sa]
-            jt = jthr[sa]
-            jump = (dist > jt) & ((along > cos_g) | (dist > 0.3 + 0.05 * za))
-            dq = [c[ob] - c[oa] for c in Ppad]
-            dqn = np.sqrt(dq[0] * dq[0] + dq[1] * dq[1] + dq[2] * dq[2]) + np.float32(1e-6)
-            known = nvp[oa] & nvp[ob]
-            curv = -((Npad[0][oa] - Npad[0][ob]) * dq[0] + (Npad[1][oa] - Npad[1][ob]) * dq[1]
-                     + (Npad[2][oa] - Npad[2][ob]) * dq[2]) / dqn
-            # no normals beyond the ends: the link's own normals, else strict continuity
-            inner = ~known & nv[sa] & nv[sb]
-            if inner.any():
-                curv_i = -((Nc[0][sa] - Nc[0][sb]) * d[0] + (Nc[1][sa] - Nc[1][sb]) * d[1]
-                           + (Nc[2][sa] - Nc[2][sb]) * d[2]) / dist
-                curv = np.where(known, curv, np.where(inner, curv_i, np.float32(0)))
-                known = known | inner
-            else:
-                curv = np.where(known, curv, np.float32(0))
-            jump |= ~known & (dist > 0.5 * jt)
-            out.append((jump, curv, known, sa, sb))
-        return out
+        cos_g = float(np.cos(np.radians(cfg.graze_deg)))
+        jh, ch, kh, jv, cv, kv = link_features(P, grid.rnormals, nv, float(cfg.jump_abs), float(cfg.jump_rel), cos_g)
+        return [(jh, ch, kh, (slice(None), slice(0, w - 1)), (slice(None), slice(1, w))),
+                (jv, cv, kv, (slice(0, h - 1), slice(None)), (slice(1, h), slice(None)))]
 
     def _color_links(self, rgb: np.ndarray, grid: DepthGrid) -> list[np.ndarray]:
         """Lab colour distance (8-bit units) of each grid link (axis 1, then axis 0)."""
