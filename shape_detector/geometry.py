@@ -64,15 +64,19 @@ def upright_rotation(up: np.ndarray | None) -> np.ndarray:
     level camera, ``(0, -1, 0)``). Degenerate when the camera looks straight up or down;
     then the camera's -y axis replaces its forward axis as the reference.
     """
-    u = normalize(DEFAULT_UP if up is None else np.asarray(up, dtype=np.float64).reshape(3))
-    fwd = np.array([0.0, 0.0, 1.0])
-    y = fwd - u * (fwd @ u)
-    if np.linalg.norm(y) < 1e-6:
-        ref = np.array([0.0, -1.0, 0.0])
-        y = ref - u * (ref @ u)
-    y = normalize(y)
-    x = np.cross(y, u)
-    return np.stack([x, y, u], axis=1)
+    # scalar arithmetic: numpy's per-call overhead made this 3x3 cost ~80 us, and it runs
+    # several times a frame
+    ux, uy, uz = (0.0, -1.0, 0.0) if up is None else (float(c) for c in np.asarray(up, dtype=np.float64).reshape(3))
+    n = max(math.sqrt(ux * ux + uy * uy + uz * uz), 1e-12)
+    ux, uy, uz = ux / n, uy / n, uz / n
+    # y: the camera's forward axis (else its -y axis) made orthogonal to up
+    yx, yy, yz = -ux * uz, -uy * uz, 1.0 - uz * uz
+    if math.sqrt(yx * yx + yy * yy + yz * yz) < 1e-6:
+        yx, yy, yz = uy * ux, -1.0 + uy * uy, uy * uz
+    n = max(math.sqrt(yx * yx + yy * yy + yz * yz), 1e-12)
+    yx, yy, yz = yx / n, yy / n, yz / n
+    x = (yy * uz - yz * uy, yz * ux - yx * uz, yx * uy - yy * ux)  # y cross up
+    return np.array([[x[0], yx, ux], [x[1], yy, uy], [x[2], yz, uz]])
 
 
 def heading_to_rotation(theta: float, up: np.ndarray | None) -> np.ndarray:
