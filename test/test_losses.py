@@ -209,3 +209,35 @@ def test_second_box_stage_moves_the_box_in_its_own_axes_and_trains_alone():
     assert float(loss) < 0.7 * first, (first, float(loss))
     # the box head's own centre is kept apart from the refined one (its losses use it)
     assert "center_head" in out and outputs_differ(out["center_head"], out["center"])
+
+
+def test_distillation_terms_vanish_on_the_teachers_own_outputs_and_pull_towards_them():
+    from shape_detector.model.losses import LossWeights, distillation_losses
+
+    torch.manual_seed(0)
+    ds = _data()
+    td = TensorData(ds, torch.device("cpu"), 10)
+    cfg = TrainConfig.from_dict({})
+    b = td.batch(torch.arange(min(8, td.n)), cfg, augment=False, one_hot_mode="train")
+    config = ModelConfig.from_dict(dict(SMALL, box2_widths=[16, 32], box2_fc=[16]))
+    teacher, student = FrustumShapeNet(config).eval(), FrustumShapeNet(config).eval()
+    w = LossWeights.from_dict(dict(distill_seg=1, distill_heading=1, distill_size=1, distill_cls=1, distill_box=1))
+    with torch.no_grad():
+        t_out = teacher(b["points"], b["one_hot"])
+    same = distillation_losses(t_out, t_out, b, w, 2.0)
+    assert set(same) == {"distill_seg", "distill_heading", "distill_size", "distill_cls", "distill_box"}
+    assert all(float(v) == pytest.approx(0.0, abs=1e-5) for v in same.values())
+    # the same box turned by a quarter turn with length and width swapped is the same solid
+    turned = dict(t_out, box_heading=t_out["box_heading"] + math.pi / 2, box_size=t_out["box_size"][:, [1, 0, 2]])
+    assert float(distillation_losses(turned, t_out, b, w, 2.0)["distill_box"]) == pytest.approx(0.0, abs=1e-5)
+    s_out = student(b["points"], b["one_hot"])
+    other = distillation_losses(s_out, t_out, b, w, 2.0)
+    assert all(float(v.detach()) > 1e-4 for v in other.values())
+    assert distillation_losses(s_out, t_out, b, LossWeights(), 2.0) == {}  # off by default
+    # one gradient step on the distillation terms alone brings the student closer
+    opt = torch.optim.SGD(student.parameters(), lr=0.05)
+    sum(other.values()).backward()
+    opt.step()
+    with torch.no_grad():
+        after = distillation_losses(student(b["points"], b["one_hot"]), t_out, b, w, 2.0)
+    assert float(sum(after.values())) < float(sum(v.detach() for v in other.values()))

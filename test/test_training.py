@@ -411,3 +411,20 @@ def test_an_init_may_differ_in_its_point_counts_but_not_in_its_layers() -> None:
     wider = FrustumShapeNet(ModelConfig(**dict(tuple_small, cls_fc=(32,))))
     with pytest.raises(ValueError, match="cls_fc"):
         load_init(wider, a, None)
+
+
+def test_a_teacher_adds_distillation_terms_and_must_match_the_heads(ds, tmp_path):
+    tr, va = fds.split_by_frame(ds, 0.34, seed=0)
+    train(_cfg(epochs=1), tr, va, tmp_path / "teacher", seed=3, print_fn=lambda s: None)
+    logs = []
+    distill = dict(distill_seg=1.0, distill_heading=1.0, distill_size=1.0, distill_cls=1.0)
+    half = dict(SMALL, seg_widths=[8, 8, 16], box_widths=[8, 16])
+    res = train(_cfg(epochs=1, model=half, teacher=str(tmp_path / "teacher" / "weights.pt"), loss_weights=distill),
+                tr, va, tmp_path / "student", seed=4, print_fn=logs.append)
+    assert any("distilling from" in s for s in logs)
+    steps = json.loads((tmp_path / "student" / "log.json").read_text())["steps"]
+    assert steps and all(k in steps[-1] for k in ("distill_seg", "distill_heading", "distill_cls"))
+    assert res is not None
+    with pytest.raises(ValueError, match="num_heading_bins"):
+        train(_cfg(epochs=1, model=dict(half, num_heading_bins=6), teacher=str(tmp_path / "teacher" / "weights.pt")),
+              tr, va, tmp_path / "bad", seed=4, print_fn=lambda s: None)

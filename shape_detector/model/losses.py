@@ -69,6 +69,12 @@ class LossWeights:
     box2_center: float = 5.0
     box2_size: float = 5.0
     box2_heading: float = 2.0
+    # knowledge distillation (:func:`distillation_losses`; 0: off)
+    distill_seg: float = 0.0
+    distill_heading: float = 0.0
+    distill_size: float = 0.0
+    distill_cls: float = 0.0
+    distill_box: float = 0.0
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> LossWeights:
@@ -249,6 +255,51 @@ def _box_terms(
     if "box2_res" in out:
         losses.update(_box2_terms(out, gt_c, gt_s, gt_h, pos, w))
     return losses, stats
+
+
+def _soft_kl(student: torch.Tensor, teacher: torch.Tensor, temperature: float) -> torch.Tensor:
+    """Per-row KL divergence (teacher || student) of logits (..., C) softened by
+    ``temperature``, times its square (gradients keep their scale as it changes)."""
+    t = temperature
+    lp_s = F.log_softmax(student / t, dim=-1)
+    lp_t = F.log_softmax(teacher / t, dim=-1)
+    return (lp_t.exp() * (lp_t - lp_s)).sum(-1) * (t * t)
+
+
+def distillation_losses(
+    out: dict[str, torch.Tensor],
+    teacher: dict[str, torch.Tensor],
+    batch: dict[str, torch.Tensor],
+    weights: LossWeights,
+    temperature: float = 2.0,
+) -> dict[str, torch.Tensor]:
+    """Knowledge-distillation terms (each only when its weight is above 0): the softened KL
+    of the teacher's segmentation (all points), heading-bin and size-cluster scores
+    (positives) and class logits (all frustums), and ``distill_box``: Huber of the distance
+    of the final box's centre (m), its log size ratios and its heading difference (rad) to
+    the teacher's box in the parametrisation nearest it (:func:`aligned_gt_box`; positives). ``teacher``: the outputs of a trained network on the same
+    batch (no gradients)."""
+    w = weights
+    pos = ~batch["is_negative"].bool()
+    terms: dict[str, torch.Tensor] = {}
+    if w.distill_seg > 0:
+        terms["distill_seg"] = w.distill_seg * _soft_kl(out["seg_logits"], teacher["seg_logits"], temperature).mean()
+    if w.distill_cls > 0:
+        terms["distill_cls"] = w.distill_cls * _soft_kl(out["cls_logits"], teacher["cls_logits"], temperature).mean()
+    if not bool(pos.any()):
+        return terms
+    if w.distill_heading > 0:
+        kl = _soft_kl(out["heading_scores"], teacher["heading_scores"], temperature)
+        terms["distill_heading"] = w.distill_heading * _masked_mean(kl, pos)
+    if w.distill_size > 0:
+        kl = _soft_kl(out["size_scores"], teacher["size_scores"], temperature)
+        terms["distill_size"] = w.distill_size * _masked_mean(kl, pos)
+    if w.distill_box > 0:  # the teacher's box in the parametrisation nearest the student's
+        a_s, a_h = aligned_gt_box(out["box_heading"].detach(), teacher["box_size"], teacher["box_heading"])
+        dc = huber((out["center"] - teacher["center"]).norm(dim=1), 1.0)
+        ds = huber(torch.log(out["box_size"].clamp_min(1e-3) / a_s.clamp_min(1e-3)), 1.0).sum(1)
+        terms["distill_box"] = w.distill_box * _masked_mean(dc + ds + huber(out["box_heading"] - a_h, 1.0), pos)
+    return terms
 
 
 def compute_losses(

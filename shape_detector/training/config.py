@@ -60,6 +60,10 @@ class TrainConfig:
     trainable: list[str] | None = None
     reinit: list[str] | None = None
     num_threads: int = 1  # 2 only on an idle machine: oversubscribed OpenMP threads are ~20x slower
+    # knowledge distillation: a trained network ("default": the packaged weights) whose outputs
+    # the trained one also learns, by the loss weights ``distill_*`` (model.losses.distillation_losses)
+    teacher: str | None = None
+    distill_temperature: float = 2.0
 
     @classmethod
     def from_dict(cls, d: dict[str, Any] | None) -> TrainConfig:

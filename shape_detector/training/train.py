@@ -30,8 +30,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..model.io import load_checkpoint, load_weights, model_from_state, save_checkpoint, save_weights
-from ..model.losses import ALL_TASKS, LossWeights, compute_losses, parse_tasks
+from ..model.io import default_weights_path, load_checkpoint, load_weights, model_from_state, save_checkpoint, save_weights
+from ..model.losses import ALL_TASKS, LossWeights, compute_losses, distillation_losses, parse_tasks
 from ..model.network import FrustumShapeNet
 from ..model.pointnet import set_bn_momentum
 from . import distributed as ddp
@@ -94,6 +94,7 @@ class _Run:
     best: float = -float("inf")
     elapsed_before: float = 0.0
     gen: torch.Generator = field(default_factory=torch.Generator)
+    teacher: FrustumShapeNet | None = None
 
     @property
     def steps_per_epoch(self) -> int:
@@ -125,6 +126,22 @@ def _build_model(cfg: TrainConfig, train_ds: dict[str, np.ndarray], seed: int, d
     return model, frozen, sorted(weight_tasks)
 
 
+def load_teacher(cfg: TrainConfig, student: FrustumShapeNet, device: torch.device) -> tuple[FrustumShapeNet, str]:
+    """The frozen network of ``cfg.teacher`` ("default": the packaged weights) and its path;
+    ValueError when its heads do not match the student's (classes, heading bins, size
+    clusters)."""
+    path = default_weights_path() if cfg.teacher == "default" else Path(str(cfg.teacher))
+    teacher, _ = load_weights(path, device)
+    for key in ("num_classes", "num_heading_bins", "num_size_clusters"):
+        if getattr(teacher.config, key) != getattr(student.config, key):
+            raise ValueError(f"teacher {path}: {key} {getattr(teacher.config, key)} differs from the trained "
+                             f"network's {getattr(student.config, key)}")
+    teacher.eval()
+    for p in teacher.parameters():
+        p.requires_grad_(False)
+    return teacher, str(path)
+
+
 def _setup(cfg: TrainConfig, train_ds, val_ds, out_dir: Path, seed: int, device: torch.device, resume: bool,
            say: Callable[[str], None], extra_meta, init_weights, provenance) -> _Run:
     env = ddp.current()
@@ -148,6 +165,9 @@ def _setup(cfg: TrainConfig, train_ds, val_ds, out_dir: Path, seed: int, device:
     prov = dict(provenance) if provenance is not None else make_provenance("adhoc", world_size=env.world_size)
     prov["world_size"] = env.world_size
     run = _Run(cfg, parse_tasks(cfg.tasks), model, net, opt, frozen, tdata, vdata, env, out_dir, seed, say, meta, prov)
+    if cfg.teacher:
+        run.teacher, meta["teacher"] = load_teacher(cfg, model, device)
+        say(f"distilling from {meta['teacher']} (temperature {cfg.distill_temperature})")
     if ck is not None:
         opt.load_state_dict(ck["optimizer"])
         run.epoch, run.step = int(ck["epoch"]), int(ck["step"])
@@ -168,8 +188,15 @@ def _step(run: _Run, idx: torch.Tensor, lr: float, l_near: int) -> dict[str, flo
     gt_frame = "shape" in run.tasks and cfg.shape_frame == "gt_box"
     sbox = shape_box_from_gt(b, cfg.shape_box_noise, run.gen) if gt_frame else None
     out = run.net(b["points"], b["one_hot"], random_gather=bool(cfg.random_gather), shape_box=sbox)
-    L = compute_losses(out, b, model.mean_sizes, run.tasks, LossWeights.from_dict(cfg.loss_weights), l_near,
+    weights = LossWeights.from_dict(cfg.loss_weights)
+    L = compute_losses(out, b, model.mean_sizes, run.tasks, weights, l_near,
                        cfg.consistency_per_face, model.config.primitive_min_size_frac, cfg.shape_frame)
+    if run.teacher is not None:
+        with torch.no_grad():
+            t_out = run.teacher(b["points"], b["one_hot"], random_gather=False, with_shape=False)
+        for k, v in distillation_losses(out, t_out, b, weights, cfg.distill_temperature).items():
+            L[k] = v
+            L["total"] = L["total"] + v
     run.opt.zero_grad(set_to_none=True)
     L["total"].backward()
     if cfg.grad_clip > 0:
