@@ -425,6 +425,13 @@ def test_a_teacher_adds_distillation_terms_and_must_match_the_heads(ds, tmp_path
     steps = json.loads((tmp_path / "student" / "log.json").read_text())["steps"]
     assert steps and all(k in steps[-1] for k in ("distill_seg", "distill_heading", "distill_cls"))
     assert res is not None
+    _, meta = load_weights(tmp_path / "student" / "weights.pt")
+    assert len(meta["teacher"]["sha256"]) == 64
+    logs.clear()
+    train(_cfg(epochs=1, model=half, teacher=str(tmp_path / "teacher" / "weights.pt"), loss_weights=distill,
+               trainable=["shape_mlp", "shape_head"]), tr, va, tmp_path / "shape_only", seed=4, print_fn=logs.append,
+          init_weights=tmp_path / "student" / "weights.pt")
+    assert any("teacher not used" in s for s in logs)
     with pytest.raises(ValueError, match="num_heading_bins"):
         train(_cfg(epochs=1, model=dict(half, num_heading_bins=6), teacher=str(tmp_path / "teacher" / "weights.pt")),
               tr, va, tmp_path / "bad", seed=4, print_fn=lambda s: None)

@@ -75,6 +75,8 @@ class FrustumShapeNet(nn.Module):
         "shape_context": ("shape_ctx_mlp",),
         "cls": ("cls_head",),
     }
+    #: children that reach only the primitives (none of the segmentation, box or class outputs)
+    SHAPE_ONLY = frozenset({"shape_mlp", "shape_ctx_mlp", "shape_head", "shape_anchor"})
     #: children whose parameters never reach ``cls_logits``: the class head reads only the
     #: segmentation and box PointNets' global features (and the mask decides the box net's
     #: points), so training only these leaves the class probabilities as they were

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..digests import sha256_file
 from ..model.io import default_weights_path, load_checkpoint, load_weights, model_from_state, save_checkpoint, save_weights
 from ..model.losses import ALL_TASKS, LossWeights, compute_losses, distillation_losses, parse_tasks
 from ..model.network import FrustumShapeNet
@@ -165,9 +166,13 @@ def _setup(cfg: TrainConfig, train_ds, val_ds, out_dir: Path, seed: int, device:
     prov = dict(provenance) if provenance is not None else make_provenance("adhoc", world_size=env.world_size)
     prov["world_size"] = env.world_size
     run = _Run(cfg, parse_tasks(cfg.tasks), model, net, opt, frozen, tdata, vdata, env, out_dir, seed, say, meta, prov)
-    if cfg.teacher:
-        run.teacher, meta["teacher"] = load_teacher(cfg, model, device)
-        say(f"distilling from {meta['teacher']} (temperature {cfg.distill_temperature})")
+    shape_only = bool(cfg.trainable) and model.part_names(cfg.trainable) <= FrustumShapeNet.SHAPE_ONLY
+    if cfg.teacher and shape_only:
+        say("teacher not used: only the shape branch trains, and no distilled output depends on it")
+    elif cfg.teacher:
+        run.teacher, teacher_path = load_teacher(cfg, model, device)
+        meta["teacher"] = {"path": teacher_path, "sha256": sha256_file(teacher_path)}
+        say(f"distilling from {teacher_path} (temperature {cfg.distill_temperature})")
     if ck is not None:
         opt.load_state_dict(ck["optimizer"])
         run.epoch, run.step = int(ck["epoch"]), int(ck["step"])
