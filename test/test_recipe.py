@@ -316,7 +316,8 @@ def test_a_spent_time_budget_stops_before_the_next_phase(tmp_path):
                      "--max-minutes", "0", "--device", "cpu"]) == 3
 
 
-@pytest.mark.parametrize("name, width", [("shipped", 1.0), ("collapsed", 1.0), ("half_width", 0.5)])
+@pytest.mark.parametrize("name, width", [("shipped", 1.0), ("collapsed", 1.0), ("half_width", 0.5),
+                                         ("half_width_distilled", 0.5)])
 def test_every_phase_of_a_packaged_recipe_can_start_from_its_parent(name, width):
     """Each network phase of a packaged recipe accepts its parent's network (branches it adds
     start as no-ops, nothing else differs) and names parts its network has; the network it
@@ -336,6 +337,10 @@ def test_every_phase_of_a_packaged_recipe_can_start_from_its_parent(name, width)
             load_init(net, nets[ph["init"]], cfg.reinit)
         if cfg.trainable:
             assert freeze(net, cfg.trainable), ph["name"]
+        if cfg.teacher:  # the teacher's heads are the ones this phase trains
+            from shape_detector.training.train import load_teacher
+
+            load_teacher(cfg, net, torch.device("cpu"))
         nets[ph["name"]] = net
     # the exported network is the shipped architecture at `width`
     from shape_detector.model.config import ModelConfig
