@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 
 from .geometry import normalize, upright_rotation
+from .gravity_kernels import axial_mean, fit_band
 
 _JOINT_MIN_FRAC = 0.05
 
@@ -71,21 +72,13 @@ def _mode_directions(
 
 
 def _axial_mean(n: np.ndarray, u: np.ndarray, angles_deg=(10.0, 6.0, 4.0)) -> tuple[np.ndarray, int]:
-    """Refine the axis ``u`` as the mean of the (sign-aligned) ``n`` in shrinking cones."""
-    cnt = 0
-    sub = n
-    for i, ang in enumerate(angles_deg):
-        c = sub @ u
-        sel = np.abs(c) > np.cos(np.radians(ang))
-        cnt = int(sel.sum())
-        if cnt < 3:
-            break
-        sub, c = sub[sel], c[sel]
-        u = normalize((sub * np.sign(c)[:, None]).sum(0))
-        if i == 0:  # later cones only look at the first cone's members (+ margin)
-            c = n @ u
-            sub = n[np.abs(c) > np.cos(np.radians(ang + 3.0))]
-    return u, cnt
+    """Refine the axis ``u`` as the mean of the (sign-aligned) ``n`` in shrinking cones; the
+    later cones look only at the first cone's members (+ 3 degrees). Returns (axis, count
+    in the last cone); see :func:`.gravity_kernels.axial_mean`."""
+    cones = np.cos(np.radians(np.asarray(angles_deg, dtype=np.float64)))
+    margin = float(np.cos(np.radians(float(angles_deg[0]) + 3.0)))
+    axis, cnt = axial_mean(np.ascontiguousarray(n, dtype=np.float64), np.asarray(u, dtype=np.float64), cones, margin)
+    return axis, int(cnt)
 
 
 def _height_peaks(h: np.ndarray, bin_m: float, min_count: int) -> list[tuple[float, int]]:
@@ -123,29 +116,13 @@ def _plane_tol(z: np.ndarray) -> np.ndarray:
 def _fit_band(Q: np.ndarray, u: np.ndarray, h0: float, iters: int = 3) -> tuple[np.ndarray, float, np.ndarray]:
     """Weighted least-squares plane (normal near ``u``) through the points of ``Q`` near height ``h0``.
 
-    Returns the refined normal (sign of ``u``), the plane height ``u . p`` and the inlier mask.
+    Returns the refined normal (sign of ``u``), the plane height ``u . p`` and the inlier mask
+    (see :func:`.gravity_kernels.fit_band`: a refit turning the normal by 15 degrees or more
+    stops it).
     """
-    tol = _plane_tol(Q[:, 2])
-    wq = 1.0 / (tol * tol)
-    sel = np.abs(Q @ u - h0) < tol
-    for _ in range(iters):
-        if sel.sum() < 10:
-            break
-        X = Q[sel]
-        wt = wq[sel]
-        c = (X * wt[:, None]).sum(0) / wt.sum()
-        D = X - c
-        C = (D * wt[:, None]).T @ D
-        _, vecs = np.linalg.eigh(C)
-        nrm = vecs[:, 0]
-        if nrm @ u < 0:
-            nrm = -nrm
-        if nrm @ u < np.cos(np.radians(15)):
-            break
-        u = nrm
-        h0 = float(c @ u)
-        sel = np.abs(Q @ u - h0) < tol
-    return u, h0, sel
+    un, hh, sel = fit_band(np.ascontiguousarray(Q, dtype=np.float64), np.asarray(u, dtype=np.float64), float(h0),
+                           int(iters), float(np.cos(np.radians(15))))
+    return un, float(hh), sel
 
 
 def _extent(Q: np.ndarray, u: np.ndarray) -> tuple[float, float]:

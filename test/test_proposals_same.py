@@ -199,3 +199,63 @@ def test_grids_survive_later_calls() -> None:
     make_grid(depth[::-1].copy() * 1.5, VGA_K, stride=4)
     for f in fields:
         assert np.array_equal(getattr(g1, f), getattr(snap, f), equal_nan=True), f
+
+
+def _axial_mean_reference(n: np.ndarray, u: np.ndarray, angles=(10.0, 6.0, 4.0)) -> tuple[np.ndarray, int]:
+    cnt, sub = 0, n
+    for i, ang in enumerate(angles):
+        c = sub @ u
+        sel = np.abs(c) > np.cos(np.radians(ang))
+        cnt = int(sel.sum())
+        if cnt < 3:
+            break
+        sub, c = sub[sel], c[sel]
+        s = (sub * np.sign(c)[:, None]).sum(0)
+        u = s / max(np.linalg.norm(s), 1e-12)
+        if i == 0:
+            sub = n[np.abs(n @ u) > np.cos(np.radians(ang + 3.0))]
+    return u, cnt
+
+
+def _fit_band_reference(Q: np.ndarray, u: np.ndarray, h0: float, iters: int = 3):
+    tol = np.minimum(0.02 + 0.003 * Q[:, 2] ** 2, 0.15)
+    sel = np.abs(Q @ u - h0) < tol
+    for _ in range(iters):
+        if sel.sum() < 10:
+            break
+        X, wt = Q[sel], 1.0 / tol[sel] ** 2
+        c = (X * wt[:, None]).sum(0) / wt.sum()
+        nrm = np.linalg.eigh(((X - c) * wt[:, None]).T @ (X - c))[1][:, 0]
+        nrm = -nrm if nrm @ u < 0 else nrm
+        if nrm @ u < np.cos(np.radians(15)):
+            break
+        u, h0 = nrm, float(c @ nrm)
+        sel = np.abs(Q @ u - h0) < tol
+    return u, h0, sel
+
+
+def test_gravity_kernels_match_their_numpy_definitions() -> None:
+    from shape_detector.gravity_planes import _axial_mean, _fit_band
+
+    rng = np.random.default_rng(5)
+    up = np.array([0.05, -0.99, 0.12]) / np.linalg.norm([0.05, -0.99, 0.12])
+    # normals: a floor family around up (both signs), a wall family, noise
+    n = np.concatenate([up + 0.03 * rng.normal(size=(900, 3)), -up + 0.03 * rng.normal(size=(300, 3)),
+                        np.cross(up, [1.0, 0, 0]) + 0.05 * rng.normal(size=(500, 3)), rng.normal(size=(400, 3))])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    for start in (up, up + [0.1, 0, 0], np.array([1.0, 0, 0])):
+        start = start / np.linalg.norm(start)
+        got, ref = _axial_mean(n, start), _axial_mean_reference(n, start)
+        assert got[1] == ref[1] and np.allclose(got[0], ref[0], atol=1e-12)
+    assert _axial_mean(n[:2], up)[1] < 3  # too few: the axis stays
+    # points: a tilted floor plane 1.3 m below the camera with depth noise, plus clutter
+    xz = rng.uniform([-2, 0.5], [2, 6], size=(3000, 2))
+    P = np.stack([xz[:, 0], np.zeros(3000), xz[:, 1]], 1)
+    P[:, 1] = -(up[0] * P[:, 0] + up[2] * P[:, 2] + 1.3) / up[1] + rng.normal(0, 0.01, 3000)
+    P = np.concatenate([P, rng.uniform([-2, -1, 0.5], [2, 1, 6], size=(800, 3))])
+    for u0, h in ((np.array([0.0, -1.0, 0.0]), -1.6), (up, -1.3), (np.array([0.0, -1.0, 0.0]), 5.0)):
+        gu, gh, gs = _fit_band(P, u0, h)
+        ru, rh, rs = _fit_band_reference(P, u0, h)
+        assert np.allclose(gu, ru, atol=1e-9) and gh == pytest.approx(rh, abs=1e-9) and np.array_equal(gs, rs)
+    fitted = _fit_band(P, np.array([0.0, -1.0, 0.0]), -1.6)
+    assert np.allclose(fitted[0], up, atol=2e-3) and fitted[1] == pytest.approx(-1.3, abs=0.01)
