@@ -144,3 +144,15 @@ def test_box_relative_iou_hand_computed():
     assert math.isnan(box_relative_iou([], box, [], box))
     with pytest.raises(ValueError, match="positive"):
         box_relative_iou(full, (box[0], box[1], np.array([1.0, 0.0, 1.0])), full, box)
+
+
+def test_nearest_distances_are_the_brute_force_ones():
+    from shape_detector.evaluation.shape_metrics import nearest_distances
+
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=(700, 3)), rng.normal(size=(500, 3))
+    b[:20] = a[:20]  # coincident points: exactly 0
+    brute = np.sqrt(((a[:, None] - b[None]) ** 2).sum(-1)).min(1)
+    d = nearest_distances(a, b)
+    assert np.allclose(d, brute, rtol=0, atol=1e-12) and np.all(d[:20] == 0.0)
+    assert np.all(np.isinf(nearest_distances(a, b[:0]))) and nearest_distances(a[:0], b).shape == (0,)

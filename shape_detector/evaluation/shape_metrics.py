@@ -41,13 +41,10 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ..geometry import box_corners, points_in_box
 from ..types import Cuboid
-
-#: nearest-neighbour queries are chunked to about this many float64 elements per block
-_CHUNK_ELEMS = 3_000_000
-
 
 def _params(c: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return (
@@ -227,23 +224,15 @@ def sample_union_surface(
 
 
 def nearest_distances(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """(N,) distance from each ``src`` point to its nearest ``dst`` point (exact, chunked)."""
+    """(N,) distance from each ``src`` point to its nearest ``dst`` point (exact: a k-d tree
+    of ``dst``, SciPy's ``cKDTree``; coincident points give exactly 0)."""
     src = np.asarray(src, dtype=np.float64).reshape(-1, 3)
     dst = np.asarray(dst, dtype=np.float64).reshape(-1, 3)
     if len(dst) == 0:
         return np.full(len(src), np.inf)
-    # candidates from the fast |a|^2 + |b|^2 - 2 a.b expansion (a BLAS matmul per chunk),
-    # then the distance to the chosen neighbour recomputed directly, so that coincident
-    # points give exactly 0 (the expansion alone leaves ~1e-8 m of cancellation noise)
-    out = np.empty(len(src))
-    bb = np.einsum("ij,ij->i", dst, dst)
-    step = max(1, _CHUNK_ELEMS // len(dst))
-    for i in range(0, len(src), step):
-        a = src[i : i + step]
-        d2 = bb[None, :] - 2.0 * (a @ dst.T)  # + |a|^2, constant per row
-        nn = np.argmin(d2, axis=1)
-        out[i : i + step] = np.linalg.norm(a - dst[nn], axis=1)
-    return out
+    if len(src) == 0:
+        return np.zeros(0)
+    return cKDTree(dst).query(src, k=1)[0]
 
 
 def set_diameter(points: np.ndarray) -> float:
