@@ -206,7 +206,7 @@ def test_second_box_stage_moves_the_box_in_its_own_axes_and_trains_alone():
         opt.zero_grad()
         loss.backward()
         opt.step()
-    assert float(loss) < 0.7 * first, (first, float(loss))
+    assert float(loss.detach()) < 0.7 * first, (first, float(loss.detach()))
     # the box head's own centre is kept apart from the refined one (its losses use it)
     assert "center_head" in out and outputs_differ(out["center_head"], out["center"])
 
