@@ -32,7 +32,7 @@ class Segmenter:
         nearly along the viewing ray, or large); ``curvature``:
         ``(n_a - n_b) . (p_a - p_b) / |p_a - p_b|`` of the patches 2 nodes beyond each end
         (> 0 convex, < 0 concave; the link's own normals where those are unknown);
-        ``known``: curvature available. Component-wise arrays (faster than (h, w, 3) dots)."""
+        ``known``: curvature available. One compiled pass (:func:`~shape_detector.grid_kernels.link_features`)."""
         cfg = self.config
         h, w = valid.shape
         nv = grid.rvalid & valid
