@@ -66,7 +66,7 @@ def upright_rotation(up: np.ndarray | None) -> np.ndarray:
     """
     # scalar arithmetic: numpy's per-call overhead made this 3x3 cost ~80 us, and it runs
     # several times a frame
-    ux, uy, uz = (0.0, -1.0, 0.0) if up is None else (float(c) for c in np.asarray(up, dtype=np.float64).reshape(3))
+    ux, uy, uz = (float(c) for c in np.asarray(DEFAULT_UP if up is None else up, dtype=np.float64).reshape(3))
     n = max(math.sqrt(ux * ux + uy * uy + uz * uz), 1e-12)
     ux, uy, uz = ux / n, uy / n, uz / n
     # y: the camera's forward axis (else its -y axis) made orthogonal to up

@@ -65,16 +65,13 @@ def _band(Q: np.ndarray, tol: np.ndarray, u: np.ndarray, h0: float) -> np.ndarra
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def fit_band(Q: np.ndarray, u: np.ndarray, h0: float, iters: int, cos_max_turn: float):
+def fit_band(Q: np.ndarray, tol: np.ndarray, u: np.ndarray, h0: float, iters: int, cos_max_turn: float):
     """``(normal, height, inliers)``: the plane with normal near ``u`` through the points of
-    ``Q`` (N,3) float64 within the depth-dependent band (``min(0.02 + 0.003 z^2, 0.15)`` m)
-    of ``u . p = h0``, refit ``iters`` times by inverse-variance-weighted least squares; a
-    refit with under 10 inliers, or one turning the normal by more than
-    ``acos(cos_max_turn)``, stops it."""
+    ``Q`` (N,3) float64 within their band half-widths ``tol`` (N,) m of ``u . p = h0``,
+    refit ``iters`` times by least squares weighted by ``1 / tol^2``; a refit with under 10
+    inliers, or one turning the normal by more than ``acos(cos_max_turn)``, stops it."""
     N = Q.shape[0]
-    tol = np.empty(N)
-    for j in range(N):
-        tol[j] = min(0.02 + 0.003 * Q[j, 2] * Q[j, 2], 0.15)
+    wq = 1.0 / (tol * tol)
     u = u.copy()
     sel = _band(Q, tol, u, h0)
     for _ in range(iters):
@@ -84,19 +81,17 @@ def fit_band(Q: np.ndarray, u: np.ndarray, h0: float, iters: int, cos_max_turn: 
         c = np.zeros(3)
         for j in range(N):
             if sel[j]:
-                wj = 1.0 / (tol[j] * tol[j])
-                W += wj
+                W += wq[j]
                 for a in range(3):
-                    c[a] += wj * Q[j, a]
+                    c[a] += wq[j] * Q[j, a]
         c /= W
         C = np.zeros((3, 3))
         for j in range(N):
             if sel[j]:
-                wj = 1.0 / (tol[j] * tol[j])
                 for a in range(3):
                     da = Q[j, a] - c[a]
                     for b in range(3):
-                        C[a, b] += wj * da * (Q[j, b] - c[b])
+                        C[a, b] += wq[j] * da * (Q[j, b] - c[b])
         _, vecs = np.linalg.eigh(C)
         nrm = vecs[:, 0].copy()
         if nrm[0] * u[0] + nrm[1] * u[1] + nrm[2] * u[2] < 0:

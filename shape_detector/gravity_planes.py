@@ -120,8 +120,9 @@ def _fit_band(Q: np.ndarray, u: np.ndarray, h0: float, iters: int = 3) -> tuple[
     (see :func:`.gravity_kernels.fit_band`: a refit turning the normal by 15 degrees or more
     stops it).
     """
-    un, hh, sel = fit_band(np.ascontiguousarray(Q, dtype=np.float64), np.asarray(u, dtype=np.float64), float(h0),
-                           int(iters), float(np.cos(np.radians(15))))
+    Q = np.ascontiguousarray(Q, dtype=np.float64)
+    un, hh, sel = fit_band(Q, _plane_tol(Q[:, 2]), np.asarray(u, dtype=np.float64), float(h0), int(iters),
+                           float(np.cos(np.radians(15))))
     return un, float(hh), sel
 
 

@@ -99,8 +99,7 @@ def smoothed_normals(pm: np.ndarray, Z: np.ndarray, k: int):
     neighbourhood agrees; 0 elsewhere), ``nvalid``, ``rnormals`` (the normalised mean
     everywhere) and ``rvalid`` (most of the 3x3 neighbourhood has raw normals)."""
     h, w = Z.shape
-    raw = np.zeros((h, w, 3), np.float32)
-    good = np.zeros((h, w), np.float32)
+    raw = np.zeros((h, w, 4), np.float32)  # unit normal, then 1 where it exists
     for i in range(k, h - k):
         for j in range(k, w - k):
             z = Z[i, j]
@@ -128,17 +127,17 @@ def smoothed_normals(pm: np.ndarray, Z: np.ndarray, k: int):
             raw[i, j, 0] = nx * inv
             raw[i, j, 1] = ny * inv
             raw[i, j, 2] = nz * inv
-            good[i, j] = 1.0
+            raw[i, j, 3] = 1.0
     # 3x3 mean (zero outside the grid) as a row pass and a column pass
     rs = np.zeros((h, w, 4), np.float32)
     for i in range(h):
         for j in range(w):
             for q in range(4):
-                v = raw[i, j, q] if q < 3 else good[i, j]
+                v = raw[i, j, q]
                 if j > 0:
-                    v += raw[i, j - 1, q] if q < 3 else good[i, j - 1]
+                    v += raw[i, j - 1, q]
                 if j < w - 1:
-                    v += raw[i, j + 1, q] if q < 3 else good[i, j + 1]
+                    v += raw[i, j + 1, q]
                 rs[i, j, q] = v
     normals = np.zeros((h, w, 3), np.float32)
     rnormals = np.zeros((h, w, 3), np.float32)
@@ -171,7 +170,7 @@ def smoothed_normals(pm: np.ndarray, Z: np.ndarray, k: int):
             rnormals[i, j, 1] = sy * inv
             rnormals[i, j, 2] = sz * inv
             rvalid[i, j] = g > 0.6
-            if good[i, j] > 0 and ln > 0.85 * g and g > 0.5 and 0 < i < h - 1 and 0 < j < w - 1:
+            if raw[i, j, 3] > 0 and ln > 0.85 * g and g > 0.5 and 0 < i < h - 1 and 0 < j < w - 1:
                 nvalid[i, j] = True
                 normals[i, j, 0] = sx * inv
                 normals[i, j, 1] = sy * inv
@@ -180,46 +179,12 @@ def smoothed_normals(pm: np.ndarray, Z: np.ndarray, k: int):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _link(P, N, nv, ia, ja, ib, jb, io, jo, iq, jq, h, w, jump_abs, jump_rel, cos_g):
-    """Jump, curvature and known flag of the link a -> b (see :func:`link_features`);
-    ``o``/``q``: the cells two beyond ``a`` and ``b`` (may lie outside the grid). The
-    scalar form, for the links at the grid's edges."""
-    eps = np.float32(1e-6)
-    zero = np.float32(0.0)
-    dx = P[ib, jb, 0] - P[ia, ja, 0]
-    dy = P[ib, jb, 1] - P[ia, ja, 1]
-    dz = P[ib, jb, 2] - P[ia, ja, 2]
-    dist = np.sqrt(dx * dx + dy * dy + dz * dz) + eps
-    ax, ay, az = P[ia, ja, 0], P[ia, ja, 1], P[ia, ja, 2]
-    rn = np.sqrt(ax * ax + ay * ay + az * az) + eps
-    along = abs(dx * ax + dy * ay + dz * az) / (dist * rn)
-    jt = np.float32(jump_abs) + np.float32(jump_rel) * az
-    jump = dist > jt and (along > cos_g or dist > np.float32(0.3) + np.float32(0.05) * az)
-    inside = 0 <= io < h and 0 <= jo < w and 0 <= iq < h and 0 <= jq < w
-    known = inside and nv[io, jo] and nv[iq, jq]
-    curv = zero
-    if known:
-        qx = P[iq, jq, 0] - P[io, jo, 0]
-        qy = P[iq, jq, 1] - P[io, jo, 1]
-        qz = P[iq, jq, 2] - P[io, jo, 2]
-        qn = np.sqrt(qx * qx + qy * qy + qz * qz) + eps
-        curv = -((N[io, jo, 0] - N[iq, jq, 0]) * qx + (N[io, jo, 1] - N[iq, jq, 1]) * qy
-                 + (N[io, jo, 2] - N[iq, jq, 2]) * qz) / qn
-    elif nv[ia, ja] and nv[ib, jb]:  # no normals beyond the ends: the link's own
-        curv = -((N[ia, ja, 0] - N[ib, jb, 0]) * dx + (N[ia, ja, 1] - N[ib, jb, 1]) * dy
-                 + (N[ia, ja, 2] - N[ib, jb, 2]) * dz) / dist
-        known = True
-    if not known and dist > np.float32(0.5) * jt:  # else strict continuity
-        jump = True
-    return jump, curv, known
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _links_row(ax, ay, az, bx, by, bz, nax, nay, naz, nbx, nby, nbz, va, vb,
                ox, oy, oz, qx, qy, qz, nox, noy, noz, nqx, nqy, nqz, vo, vq,
                jump_abs, jump_rel, cos_g, jump_out, curv_out, known_out, n):
-    """:func:`_link` over ``n`` links a -> b of one row of the grid whose cells ``o``, ``q``
-    (two beyond each end) all lie inside it: component rows in, branch-free (vectorised)."""
+    """Jump, curvature and known flag (see :func:`link_features`) of ``n`` links a -> b of one
+    row, ``o`` / ``q`` the cells two beyond ``a`` and ``b``: component rows in, branch-free
+    (vectorised)."""
     eps = np.float32(1e-6)
     zero = np.float32(0.0)
     ja = np.float32(jump_abs)
@@ -257,32 +222,36 @@ def link_features(P: np.ndarray, N: np.ndarray, nv: np.ndarray, jump_abs: float,
     (h,w,3) unit normals, ``nv`` (h,w) their mask."""
     h, w = nv.shape
     cg = np.float32(cos_g)
-    px, py, pz = np.ascontiguousarray(P[:, :, 0]), np.ascontiguousarray(P[:, :, 1]), np.ascontiguousarray(P[:, :, 2])
-    nx, ny, nz = np.ascontiguousarray(N[:, :, 0]), np.ascontiguousarray(N[:, :, 1]), np.ascontiguousarray(N[:, :, 2])
+    # zero-padded by 3 cells with no normals: a link whose far cells leave the grid is
+    # "not known there", like any other, and one row kernel serves every link
+    pad = 3
+    hp, wp = h + 2 * pad, w + 2 * pad
+    px, py, pz = np.zeros((hp, wp), np.float32), np.zeros((hp, wp), np.float32), np.zeros((hp, wp), np.float32)
+    nx, ny, nz = np.zeros((hp, wp), np.float32), np.zeros((hp, wp), np.float32), np.zeros((hp, wp), np.float32)
+    vp = np.zeros((hp, wp), np.bool_)
+    for i in range(h):
+        for j in range(w):
+            px[i + pad, j + pad], py[i + pad, j + pad], pz[i + pad, j + pad] = P[i, j, 0], P[i, j, 1], P[i, j, 2]
+            nx[i + pad, j + pad], ny[i + pad, j + pad], nz[i + pad, j + pad] = N[i, j, 0], N[i, j, 1], N[i, j, 2]
+            vp[i + pad, j + pad] = nv[i, j]
     wl, hl = max(w - 1, 0), max(h - 1, 0)
     jh, ch, kh = np.zeros((h, wl), np.bool_), np.zeros((h, wl), np.float32), np.zeros((h, wl), np.bool_)
     jv, cv, kv = np.zeros((hl, w), np.bool_), np.zeros((hl, w), np.float32), np.zeros((hl, w), np.bool_)
-    n_in = w - 5  # links j -> j+1 whose cells j-2 and j+3 are inside: j = 2 .. w-4
-    for i in range(h):
-        if n_in > 0:
-            _links_row(px[i, 2:], py[i, 2:], pz[i, 2:], px[i, 3:], py[i, 3:], pz[i, 3:],
-                       nx[i, 2:], ny[i, 2:], nz[i, 2:], nx[i, 3:], ny[i, 3:], nz[i, 3:], nv[i, 2:], nv[i, 3:],
-                       px[i], py[i], pz[i], px[i, 5:], py[i, 5:], pz[i, 5:],
-                       nx[i], ny[i], nz[i], nx[i, 5:], ny[i, 5:], nz[i, 5:], nv[i], nv[i, 5:],
-                       jump_abs, jump_rel, cg, jh[i, 2:], ch[i, 2:], kh[i, 2:], n_in)
-        for j in range(wl):
-            if n_in <= 0 or j < 2 or j > w - 4:
-                jh[i, j], ch[i, j], kh[i, j] = _link(P, N, nv, i, j, i, j + 1, i, j - 2, i, j + 3, h, w,
-                                                     jump_abs, jump_rel, cg)
-    for i in range(hl):
-        if 2 <= i <= h - 4:
-            _links_row(px[i], py[i], pz[i], px[i + 1], py[i + 1], pz[i + 1],
-                       nx[i], ny[i], nz[i], nx[i + 1], ny[i + 1], nz[i + 1], nv[i], nv[i + 1],
-                       px[i - 2], py[i - 2], pz[i - 2], px[i + 3], py[i + 3], pz[i + 3],
-                       nx[i - 2], ny[i - 2], nz[i - 2], nx[i + 3], ny[i + 3], nz[i + 3], nv[i - 2], nv[i + 3],
-                       jump_abs, jump_rel, cg, jv[i], cv[i], kv[i], w)
-        else:
-            for j in range(w):
-                jv[i, j], cv[i, j], kv[i, j] = _link(P, N, nv, i, j, i + 1, j, i - 2, j, i + 3, j, h, w,
-                                                     jump_abs, jump_rel, cg)
+    c0, c1 = pad, pad + w
+    for i in range(h):  # to the right neighbour: a = j, b = j + 1, o = j - 2, q = j + 3
+        r = i + pad
+        a, b, o, q = slice(c0, c1), slice(c0 + 1, c1 + 1), slice(c0 - 2, c1 - 2), slice(c0 + 3, c1 + 3)
+        _links_row(px[r, a], py[r, a], pz[r, a], px[r, b], py[r, b], pz[r, b],
+                   nx[r, a], ny[r, a], nz[r, a], nx[r, b], ny[r, b], nz[r, b], vp[r, a], vp[r, b],
+                   px[r, o], py[r, o], pz[r, o], px[r, q], py[r, q], pz[r, q],
+                   nx[r, o], ny[r, o], nz[r, o], nx[r, q], ny[r, q], nz[r, q], vp[r, o], vp[r, q],
+                   jump_abs, jump_rel, cg, jh[i], ch[i], kh[i], wl)
+    for i in range(hl):  # to the one below: rows a = i, b = i + 1, o = i - 2, q = i + 3
+        ra, rb, ro, rq = i + pad, i + pad + 1, i + pad - 2, i + pad + 3
+        c = slice(c0, c1)
+        _links_row(px[ra, c], py[ra, c], pz[ra, c], px[rb, c], py[rb, c], pz[rb, c],
+                   nx[ra, c], ny[ra, c], nz[ra, c], nx[rb, c], ny[rb, c], nz[rb, c], vp[ra, c], vp[rb, c],
+                   px[ro, c], py[ro, c], pz[ro, c], px[rq, c], py[rq, c], pz[rq, c],
+                   nx[ro, c], ny[ro, c], nz[ro, c], nx[rq, c], ny[rq, c], nz[rq, c], vp[ro, c], vp[rq, c],
+                   jump_abs, jump_rel, cg, jv[i], cv[i], kv[i], w)
     return jh, ch, kh, jv, cv, kv

@@ -433,5 +433,6 @@ def test_a_teacher_adds_distillation_terms_and_must_match_the_heads(ds, tmp_path
           init_weights=tmp_path / "student" / "weights.pt")
     assert any("teacher not used" in s for s in logs)
     with pytest.raises(ValueError, match="num_heading_bins"):
-        train(_cfg(epochs=1, model=dict(half, num_heading_bins=6), teacher=str(tmp_path / "teacher" / "weights.pt")),
+        train(_cfg(epochs=1, model=dict(half, num_heading_bins=6), teacher=str(tmp_path / "teacher" / "weights.pt"),
+                   loss_weights=distill),
               tr, va, tmp_path / "bad", seed=4, print_fn=lambda s: None)

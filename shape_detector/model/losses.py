@@ -261,9 +261,9 @@ def _soft_kl(student: torch.Tensor, teacher: torch.Tensor, temperature: float) -
     """Per-row KL divergence (teacher || student) of logits (..., C) softened by
     ``temperature``, times its square (gradients keep their scale as it changes)."""
     t = temperature
-    lp_s = F.log_softmax(student / t, dim=-1)
-    lp_t = F.log_softmax(teacher / t, dim=-1)
-    return (lp_t.exp() * (lp_t - lp_s)).sum(-1) * (t * t)
+    kl = F.kl_div(F.log_softmax(student / t, dim=-1), F.log_softmax(teacher / t, dim=-1), reduction="none",
+                  log_target=True)
+    return kl.sum(-1) * (t * t)
 
 
 def distillation_losses(
@@ -277,8 +277,9 @@ def distillation_losses(
     of the teacher's segmentation (all points), heading-bin and size-cluster scores
     (positives) and class logits (all frustums), and ``distill_box``: Huber of the distance
     of the final box's centre (m), its log size ratios and its heading difference (rad) to
-    the teacher's box in the parametrisation nearest it (:func:`aligned_gt_box`; positives). ``teacher``: the outputs of a trained network on the same
-    batch (no gradients)."""
+    the teacher's box in the parametrisation nearest it (:func:`aligned_gt_box`;
+    positives). ``teacher``: the outputs of a trained network on the same batch (no
+    gradients)."""
     w = weights
     pos = ~batch["is_negative"].bool()
     terms: dict[str, torch.Tensor] = {}

@@ -166,9 +166,13 @@ def _setup(cfg: TrainConfig, train_ds, val_ds, out_dir: Path, seed: int, device:
     prov = dict(provenance) if provenance is not None else make_provenance("adhoc", world_size=env.world_size)
     prov["world_size"] = env.world_size
     run = _Run(cfg, parse_tasks(cfg.tasks), model, net, opt, frozen, tdata, vdata, env, out_dir, seed, say, meta, prov)
-    shape_only = bool(cfg.trainable) and model.part_names(cfg.trainable) <= FrustumShapeNet.SHAPE_ONLY
-    if cfg.teacher and shape_only:
-        say("teacher not used: only the shape branch trains, and no distilled output depends on it")
+    # the teacher costs a forward a step: load it only where a distillation term can move a weight
+    distilling = any(v > 0 for k, v in LossWeights.from_dict(cfg.loss_weights).to_dict().items()
+                     if k.startswith("distill_"))
+    reachable = not cfg.trainable or not model.part_names(cfg.trainable) <= FrustumShapeNet.SHAPE_ONLY
+    if cfg.teacher and not (distilling and reachable):
+        say("teacher not used: no distillation weight is set, or only the shape branch trains "
+            "(no distilled output depends on it)")
     elif cfg.teacher:
         run.teacher, teacher_path = load_teacher(cfg, model, device)
         meta["teacher"] = {"path": teacher_path, "sha256": sha256_file(teacher_path)}
