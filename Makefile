@@ -72,12 +72,14 @@ $(DATA)/test/index.json: | $(STAMP)
 # docs/training.md (phases, provenance, several processes or GPUs with torchrun).
 # The recipe runs again after the 2D proposer's training: the hybrid proposer's classifier
 # (stage 5b) learns from that proposer's candidates, so it retrains only if the proposer changed.
+# Last, the scene map's track classifier learns from maps the new detector builds.
 RECIPE ?= shipped
 RUNS   ?= runs/shipped
 weights: | $(STAMP)
 	$(SD) train --recipe $(RECIPE) --data-root $(DATA) --out $(RUNS) --device cpu --export shape_detector/weights
 	$(SD) train-proposer --data $(DATA)/train $(DATA)/extra $(DATA)/extra2 --out shape_detector/weights/proposer2d.onnx --epochs 30
 	$(SD) train --recipe $(RECIPE) --data-root $(DATA) --out $(RUNS) --device cpu --export shape_detector/weights
+	$(SD) train-track-classifier --out shape_detector/weights/track_classifier.json
 
 evaluate: $(DATA)/test/index.json
 	$(SD) evaluate --weights shape_detector/weights/default.pt --data $(DATA)/test --frames 250 --min-visible 0.1 --out docs/eval/gt_boxes

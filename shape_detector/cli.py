@@ -27,6 +27,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("shape_detector.bench", "benchmarks that print numbers (synth, network, proposals, node)"),
     "evaluate-scene": ("shape_detector.evaluation.scene_cli",
                        "score the scene map (final-map mAP, duplicates, id switches, jitter, grid IoU) on walk-throughs"),
+    "train-track-classifier": ("shape_detector.evaluation.track_classifier_cli",
+                               "fit the scene map's track classifier on generated walk-throughs"),
     "evaluate-ar": ("shape_detector.evaluation.ar_cli",
                     "score the AR queries (ray casts, collision, paths) on generated walk-throughs"),
     "export": ("shape_detector.export.cli", "export a scene map JSON to .glb / .gltf / .obj for game engines"),

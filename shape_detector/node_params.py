@@ -86,6 +86,11 @@ class NodeConfig:
     scene_publish_score: float = setting(0.5, "a confirmed tracked object is published (scene, map grid, JSON) "
                                          "while its score, which grows with consistent detections, is at least "
                                          "this (0 = as soon as confirmed)", range=(0.0, 1.0))
+    scene_track_classifier: str = setting("default", "decides each published tracked object's class and score "
+                                          "from the whole track (its class evidence, fused size, detections and "
+                                          "neighbours): default (the packaged one), a weights file from "
+                                          "shape-detector train-track-classifier, or empty (the class evidence "
+                                          "alone decides)")
     scene_in: str = setting("", "scene JSON to continue at start (written by scene_out or replay --scene-out, in "
                             "world_frame, e.g. a robot's map frame); empty = start a fresh map")
     scene_out: str = setting("", "file the scene map is written to as JSON (atomically) by ~/save_scene, every "

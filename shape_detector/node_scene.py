@@ -48,7 +48,8 @@ def scene_config(p: dict[str, Any]) -> SceneConfig:
                        grid_resolution=float(p["grid_resolution"]), inflation_radius=float(p["inflation_radius"]),
                        confirm_observations=int(p["scene_confirm_observations"]),
                        delete_misses=int(p["scene_delete_misses"]),
-                       publish_score=float(p["scene_publish_score"]))
+                       publish_score=float(p["scene_publish_score"]),
+                       track_classifier=str(p.get("scene_track_classifier", "default")))
 
 
 def newest_stamp_ns(kind: str, msg: Any) -> int:

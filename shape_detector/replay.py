@@ -36,7 +36,7 @@ from .settings import specs
 
 #: the scene map's settings, shared with the node (its parameters of these names)
 SCENE_SETTINGS = ("grid_resolution", "inflation_radius", "scene_confirm_observations", "scene_delete_misses",
-                  "scene_publish_score", "scene_in")
+                  "scene_publish_score", "scene_track_classifier", "scene_in")
 
 
 def _check_device_flag(p: argparse.ArgumentParser) -> None:

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from shape_detector.scene import SceneMap
+from shape_detector.scene import SceneConfig, SceneMap
 from test_scene_support import K, detection, pose, render, room
 
 T0 = pose(0.0, 0.0, 1.2, 0.0)
@@ -64,7 +64,8 @@ def test_face_spread_survives_the_round_trip_and_old_documents_load():
 
 
 def test_class_probabilities_are_published_saved_and_restored():
-    m = SceneMap()
+    evidence = SceneConfig(track_classifier="")  # the class evidence's own bookkeeping
+    m = SceneMap(evidence)
     for i, cls in enumerate(["desk", "table", "desk", "desk"]):
         m.update([detection(*CHAIR, T0, cls=cls, score=0.9)], T0, None, None, stamp_ns=i)
     a = m.objects()[0]
@@ -73,7 +74,7 @@ def test_class_probabilities_are_published_saved_and_restored():
     assert 0.85 < sum(a.class_probs.values()) <= 1.0 + 1e-9  # the eight others under 5% each are left out
     doc = m.to_json()
     assert doc["objects"][0]["class_probs"] == pytest.approx(a.class_probs, abs=1e-3)
-    back = SceneMap.from_json(doc)
+    back = SceneMap.from_json(doc, evidence)
     assert back.objects()[0].class_probs == pytest.approx(a.class_probs, abs=2e-3)
     # the restored evidence keeps the runner-up: two more "table" frames tip the class
     for i in range(2):
@@ -81,7 +82,7 @@ def test_class_probabilities_are_published_saved_and_restored():
     assert back.objects()[0].class_probs["table"] > a.class_probs["table"]
     for o in doc["objects"]:  # documents without class_probs (and inconsistent ones) load one-hot
         o["class_probs"] = {"table": 1.0} if o is doc["objects"][0] else {}
-    assert SceneMap.from_json(doc).objects()[0].class_probs == {"desk": 1.0}
+    assert SceneMap.from_json(doc, evidence).objects()[0].class_probs == {"desk": 1.0}
 
 
 def test_loaded_map_keeps_updating_with_the_same_id():

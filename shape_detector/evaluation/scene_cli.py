@@ -44,6 +44,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--delete-misses", type=int, default=None, help="SceneConfig.delete_misses")
     p.add_argument("--publish-score", type=float, default=None, help="SceneConfig.publish_score (0: every "
                    "confirmed track)")
+    p.add_argument("--track-classifier", default=None,
+                   help="SceneConfig.track_classifier: default (packaged), a weights file, or '' (off: the class "
+                   "evidence decides)")
     p.add_argument("--up", choices=("pose", "estimate"), default="pose",
                    help="gravity for the detector: pose (the camera pose's z axis, default; the node's "
                    "up_source auto with a pose) or estimate (from each frame)")
@@ -68,7 +71,8 @@ def _config(args: argparse.Namespace) -> Any:
 
     changes = {k: v for k, v in (("confirm_observations", args.confirm_observations),
                                  ("delete_misses", args.delete_misses),
-                                 ("publish_score", args.publish_score)) if v is not None}
+                                 ("publish_score", args.publish_score),
+                                 ("track_classifier", args.track_classifier)) if v is not None}
     return replace(SceneConfig(), **changes)
 
 
@@ -106,12 +110,14 @@ def main(args: argparse.Namespace) -> int:
         return 2
     from ..detector import ShapeDetector
     from .pose_noise import parse_pose_noise
+    from ..scene.track_classifier import load_track_classifier
     from .scene_eval import collect, score_sequences
 
     try:
         det_config = config_from_args(args)
         detector = ShapeDetector(det_config)  # also with workers: bad settings or weights refused here, clearly
         config = _config(args)
+        load_track_classifier(config.track_classifier)  # a bad file is refused before the walk-throughs run
         noise = parse_pose_noise(args.pose_noise) if args.pose_noise else None
     except (FileNotFoundError, ValueError) as e:
         print(f"shape-detector evaluate-scene: {e}", file=sys.stderr)

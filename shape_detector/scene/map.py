@@ -15,7 +15,9 @@ objects (camera optical frame: x right, y down, z forward), the pose ``T_world_c
    tentative tracks not seen again within ``tentative_max_age`` frames are dropped;
 4. overlapping tracks merge (the older id stays);
 5. the floor seen in the depth is added to the grid (:mod:`.grid`), and the depth points
-   above it to the observed surfaces (:mod:`.surface`), which ray casts land on.
+   above it to the observed surfaces (:mod:`.surface`), which ray casts land on;
+6. the track classifier (:mod:`.track_classifier`) decides each published track's class and
+   score from the whole track (``SceneConfig.track_classifier``).
 
 A track is published (:meth:`objects`) once seen in ``confirm_observations`` frames.
 Without a pose (static camera) the world is the camera frame turned so that z is up
@@ -41,7 +43,8 @@ from .grid import (FloorMemory, NavGrid, build_grid, depth_points_world, estimat
 from .json_io import grid_from_dict, load_dict, scene_to_dict, structure_from_dict, write_json
 from .observe import to_observation
 from .surface import SurfaceMemory, split_points
-from .tracks import N_CLASSES, Observation, Track
+from .track_classifier import TrackClassifier, load_track_classifier, track_features
+from .tracks import N_CLASSES, Observation, Track, tracks_state
 from .types import SceneObject, ScenePrimitive
 from .visibility import EmptyParams, seen_empty_many
 
@@ -104,6 +107,10 @@ class SceneConfig:
     merge_iou: float = 0.4
     #: two tracks of agreeing class whose intersection over the smaller box is above this merge
     merge_ios: float = 0.6
+    #: track classifier deciding published tracks' classes and scores from the whole track
+    #: (:mod:`.track_classifier`): "default" (the packaged one), a weights file, or "" (off: the
+    #: accumulated class evidence decides)
+    track_classifier: str = "default"
 
 
 def level_rotation(up_camera: np.ndarray | None) -> np.ndarray:
@@ -137,6 +144,8 @@ class SceneMap:
         self.frames = 0
         v = self.config.surface_voxel
         self.surface: SurfaceMemory | None = SurfaceMemory(v) if v > 0 else None
+        #: re-decides published tracks' classes and scores (:mod:`.track_classifier`); None: off
+        self.classifier: TrackClassifier | None = load_track_classifier(self.config.track_classifier)
 
     # -- public --------------------------------------------------------------------
     def update(self, objects: Sequence[Object3D], T_world_camera: np.ndarray | None, depth: np.ndarray | None,
@@ -159,6 +168,7 @@ class SceneMap:
         if T_world_camera is not None and self.config.camera_path_radius > 0:
             # half-cell lattice: every cell the disc covers gets a point, wherever the cell lines fall
             self.floor.add(disc_points(T[:2, 3], self.config.camera_path_radius, 0.5 * self.config.grid_resolution))
+        self._decide()
         self._grid = None
 
     def objects(self, surfaces: bool = False) -> list[SceneObject]:
@@ -169,7 +179,7 @@ class SceneMap:
     def _objects_and_structure(self, surfaces: bool) -> tuple[list[SceneObject], np.ndarray | None]:
         """:meth:`objects`, and with ``surfaces`` the observed points no object claims (None
         without surfaces)."""
-        out = [self._published(t) for t in sorted(self.tracks, key=lambda t: t.id) if self._shown(t)]
+        out = [self.published(t) for t in sorted(self.tracks, key=lambda t: t.id) if self.shown(t)]
         seen = self.surface_points() if surfaces else None
         if seen is None:
             return out, None
@@ -195,7 +205,7 @@ class SceneMap:
         if self._grid is None:
             parts = []
             for t in self.tracks:
-                if not self._shown(t):
+                if not self.shown(t):
                     continue
                 prims = t.primitives()
                 parts += [(p.center, p.size, p.rotation) for p in prims] or [(t.center, t.size, t.rotation)]
@@ -372,19 +382,52 @@ class SceneMap:
         if self.surface is not None:
             self.surface.add(np.compress(pts[:, 2] > self.floor_z + c.floor_band, pts, axis=0))
 
-    def _shown(self, t: Track) -> bool:
-        """Whether track ``t`` is published: confirmed, and scored at least ``publish_score``."""
-        return t.confirmed and t.score >= self.config.publish_score
+    def shown(self, t: Track) -> bool:
+        """Whether track ``t`` is published (:func:`published_rule`)."""
+        return bool(published_rule(t.confirmed, t.restored, t.score, self.config.publish_score))
 
     @staticmethod
-    def _published(t: Track) -> SceneObject:
+    def published(t: Track) -> SceneObject:
+        """Track ``t`` as a published object: class, score and class probabilities as the track
+        classifier decided them (:meth:`_decide`), else from its own class evidence and score."""
         R = t.rotation
         prims = [ScenePrimitive(p.center, p.size, p.rotation) for p in t.primitives()]
-        return SceneObject(id=t.id, class_name=t.class_name, score=t.score, center=t.center.copy(),
+        if t.decision is not None:
+            k, score, probs = t.decision
+            name = CLASSES[k]
+        else:
+            name, score, probs = t.class_name, t.score, t.class_probs
+        return SceneObject(id=t.id, class_name=name, score=float(score), center=t.center.copy(),
                            size=t.size.copy(), rotation=R, yaw=t.yaw, observations=t.observations,
                            first_seen_ns=t.first_seen_ns, last_seen_ns=t.last_seen_ns, primitives=prims,
                            face_sd=t.face_sd,
-                           class_probs={c: float(p) for c, p in zip(CLASSES, t.class_probs) if p >= 0.05})
+                           class_probs={c: float(p) for c, p in zip(CLASSES, probs) if p >= 0.05})
+
+    def _decide(self) -> None:
+        """The track classifier's class and score for every published track (restored ones keep
+        what was saved until they are observed again)."""
+        for t in self.tracks:
+            if not t.as_saved:
+                t.decision = None
+        if self.classifier is None or not self.tracks:
+            return
+        probs, scores = tracks_state(self.tracks)
+        flags = np.array([(t.confirmed, t.restored) for t in self.tracks], bool)
+        idx = np.flatnonzero(published_rule(flags[:, 0], flags[:, 1], scores, self.config.publish_score))
+        if len(idx) == 0:
+            return
+        shown = [self.tracks[i] for i in idx]
+        x = track_features(probs[idx], np.array([t.size for t in shown]), np.array([t.center for t in shown]),
+                           np.array([t.observations for t in shown]), scores[idx], self.floor_z)
+        for t, k, s, p in zip(shown, *self.classifier.decide(x)):
+            if not t.as_saved:
+                t.decision = (int(k), float(s), p)
+
+
+def published_rule(confirmed: Any, restored: Any, score: Any, publish_score: float) -> Any:
+    """Whether tracks are published (scalars or arrays alike): confirmed, and their own score
+    (not the track classifier's) at least ``publish_score``, or restored from a saved map."""
+    return confirmed & (restored | (score >= publish_score))
 
 
 def disc_points(center_xy: np.ndarray, radius: float, step: float) -> np.ndarray:
@@ -435,4 +478,6 @@ def _track_from_object(o: SceneObject, max_weight: float) -> Track:
                       (np.abs(R.T @ p.rotation) @ p.size) / np.maximum(t.size, 1e-6)) for p in o.primitives]
     t.prims_weight = w
     t.face_ss, t.face_ss_weight = w * np.asarray(o.face_sd, float).reshape(4) ** 2, w
+    t.restored = t.as_saved = True
+    t.decision = (int(np.argmax(ev)), float(o.score), ev)  # published as saved
     return t

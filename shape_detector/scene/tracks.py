@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from typing import Any
+
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -112,6 +114,13 @@ class Track:
     #: fused ones (m^2), and their total weight: the faces' spread, :attr:`face_sd`
     face_ss: np.ndarray = field(default_factory=lambda: np.zeros(4))
     face_ss_weight: float = 0.0
+    #: the map's track classifier's (class index, score, (N_CLASSES,) class probabilities), or
+    #: None: the class evidence and :attr:`score` are published
+    decision: tuple[int, float, np.ndarray] | None = None
+    #: restored from a saved map: published whatever its score (it was when saved)
+    restored: bool = False
+    #: restored and not observed since: :attr:`decision` is the saved class and score
+    as_saved: bool = False
 
     @property
     def class_name(self) -> str:
@@ -128,9 +137,7 @@ class Track:
     def score(self) -> float:
         """Mean detector confidence, scaled up with the number of observations and by how
         consistent the class evidence is (0..1)."""
-        mean = self.score_sum / max(self.observations, 1)
-        consistency = 0.5 + 0.5 * float(self.class_probs.max())
-        return float(mean * consistency * (1.0 - np.exp(-self.observations / 3.0)))
+        return float(track_score(self.score_sum, self.observations, self.class_probs.max()))
 
     @property
     def rotation(self) -> np.ndarray:
@@ -189,6 +196,7 @@ class Track:
         self._fuse_prims(_turn_prims(ob.prims_local, k), w)
         self.frames_since_seen = 0
         self.empty_streak = 0
+        self.as_saved = False
 
     def _fuse_prims(self, prims: list, w: float) -> None:
         """Average primitives part by part when both sets have the same number of parts
@@ -223,6 +231,8 @@ class Track:
         self.class_evidence = self.class_evidence + other.class_evidence
         self.weight_sum = w0 + w1
         self.existence = max(self.existence, other.existence)
+        self.restored = self.restored or other.restored
+        self.as_saved = self.as_saved and other.as_saved
         self.observations += other.observations
         self.score_sum += other.score_sum
         self.first_seen_ns = min(self.first_seen_ns, other.first_seen_ns)
@@ -242,6 +252,23 @@ class Track:
         wa_, wb_ = max(wa, 1e-9), max(wb, 1e-9)
         self.face_ss = self.face_ss + other.face_ss[_FACE_TURNS[k % 4]] + wa_ * wb_ / (wa_ + wb_) * (a - b) ** 2
         self.face_ss_weight = wa + wb
+
+
+def track_score(score_sum: Any, observations: Any, top_prob: Any) -> Any:
+    """:attr:`Track.score` from its parts (scalars or arrays alike): the mean detector
+    confidence times ``0.5 + 0.5 * top_prob`` (the top class's share of the evidence) times
+    ``1 - exp(-observations / 3)``."""
+    n = np.maximum(observations, 1)
+    return score_sum / n * (0.5 + 0.5 * top_prob) * (1.0 - np.exp(-np.asarray(observations, float) / 3.0))
+
+
+def tracks_state(tracks: list[Track]) -> tuple[np.ndarray, np.ndarray]:
+    """(N, N_CLASSES) :attr:`Track.class_probs` and (N,) :attr:`Track.score` of ``tracks`` at once."""
+    ev = np.array([t.class_evidence for t in tracks], float).reshape(-1, N_CLASSES)
+    tot = ev.sum(1, keepdims=True)
+    probs = np.where(tot > 0, ev / np.where(tot > 0, tot, 1.0), 1.0 / N_CLASSES)
+    obs = np.array([t.observations for t in tracks], float)
+    return probs, track_score(np.array([t.score_sum for t in tracks], float), obs, probs.max(1) if len(ev) else obs)
 
 
 def _faces(center: np.ndarray, size: np.ndarray, R: np.ndarray, origin: np.ndarray) -> np.ndarray:

@@ -37,9 +37,12 @@ class SceneObject:
 
     #: stable track id (>= 1)
     id: int
-    #: one of :data:`shape_detector.classes.CLASSES`, decided from the accumulated class evidence
+    #: one of :data:`shape_detector.classes.CLASSES`, decided by the map's track classifier from the
+    #: whole track (its accumulated class evidence, fused box, detections, neighbours), or by the
+    #: class evidence alone when the map has none (``SceneConfig.track_classifier``)
     class_name: str
-    #: 0..1; grows with consistent observations
+    #: 0..1; with a track classifier the probability that the object is of ``class_name`` (background
+    #: counted), else the detections' mean score grown with consistent observations
     score: float
     #: (3,) box centre, metres
     center: np.ndarray
@@ -60,7 +63,8 @@ class SceneObject:
     #: (4,) how far apart the observations put the box's -x, +x, -y, +y faces (along its axes):
     #: their weighted standard deviation, metres; zeros when unknown
     face_sd: np.ndarray = field(default_factory=lambda: np.zeros(4))
-    #: class -> probability from the accumulated class evidence (classes under 5% left out);
+    #: class -> probability, from the track classifier (background left out) or the accumulated
+    #: class evidence (classes under 5% left out);
     #: empty when only ``class_name`` is known
     class_probs: dict[str, float] = field(default_factory=dict)
 
