@@ -113,11 +113,13 @@ def test_the_map_publishes_the_classifiers_decision_and_restores_it_as_saved(tmp
     assert b.class_name == "sofa" and b.score == pytest.approx(0.4, abs=1e-6)
     assert b.class_probs == {"sofa": pytest.approx(1.0)}
     np.testing.assert_allclose(b.center, a.center)  # only class and score change
+    assert b.track_score == pytest.approx(a.score) and a.track_score == pytest.approx(a.score)
     assert decided.tracks[0].class_name == "chair"  # the track's own evidence is kept for association
     # saved and loaded: published as saved, though 0.4 is under publish_score
     again = SceneMap.from_json(decided.to_json(), SceneConfig(track_classifier=""))
     (c,) = again.objects()
     assert c.class_name == "sofa" and c.score == pytest.approx(0.4, abs=1e-6)
+    assert c.track_score == pytest.approx(a.score, abs=1e-3)  # the track's own score survives the file
     # observed again, the loaded track is decided afresh
     reloaded = SceneMap.from_json(decided.to_json(), SceneConfig(track_classifier=_always("bed", tmp_path)))
     assert reloaded.objects()[0].class_name == "sofa"
@@ -172,3 +174,19 @@ def test_tracks_state_is_each_tracks_class_probs_and_score():
     np.testing.assert_allclose(probs, [t.class_probs for t in tracks])
     np.testing.assert_allclose(score, [t.score for t in tracks])
     assert tracks_state([])[0].shape == (0, len(CLASSES))
+
+
+def test_planning_doubts_a_track_by_its_own_score_not_the_class_probability():
+    from shape_detector.ar.margins import DOUBT_SCORE, without_doubtful
+    from shape_detector.scene.grid import NavGrid
+    from shape_detector.scene.types import SceneObject
+
+    grid = NavGrid(0.05, np.array([0.0, 0.0]), np.full((40, 40), 100, dtype=np.int8), 0.0)
+    box = dict(center=np.array([1.0, 1.0, 0.4]), size=np.array([0.6, 0.6, 0.8]), rotation=np.eye(3))
+    torn = SceneObject(1, "table", 0.45, class_probs={"table": 0.5, "desk": 0.45}, track_score=0.9, **box)
+    assert torn.score < DOUBT_SCORE
+    assert without_doubtful(grid, [torn]) is grid  # sure it is there, unsure which class
+    ghost = SceneObject(1, "table", 0.9, track_score=0.3, **box)
+    assert (without_doubtful(grid, [ghost]).data == -1).any()
+    legacy = SceneObject(1, "table", 0.3, **box)  # saved before track scores: its score stands in
+    assert (without_doubtful(grid, [legacy]).data == -1).any()

@@ -84,6 +84,7 @@ def _as_object(o: Any) -> SceneObject:
         last_seen_ns=int(getattr(o, "last_seen_ns", 0)), primitives=prims, surface=surface,
         face_sd=_face_sd(getattr(o, "face_sd", None)),
         class_probs={str(k): float(v) for k, v in (getattr(o, "class_probs", None) or {}).items()},
+        track_score=None if getattr(o, "track_score", None) is None else float(o.track_score),
     )
 
 

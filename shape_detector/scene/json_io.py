@@ -9,6 +9,8 @@
                   "primitives": [{"center": [3], "size": [3], "rotation": [[3x3]]}],
                   "face_sd": [4] (spread of the observed -x, +x, -y, +y faces, m; optional),
                   "class_probs": {class: probability} (classes under 5% left out; optional),
+                  "track_score": the track's own score, "score" being the track classifier's
+                                 class probability (optional),
                   "surface" (optional): {"encoding": "base64-int16-mm-from-center", "count",
                                "data": observed surface points, x y z int16 mm from "center"}}],
      "grid": {"resolution", "origin": [x, y], "width", "height", "floor_z",

@@ -401,7 +401,8 @@ class SceneMap:
                            size=t.size.copy(), rotation=R, yaw=t.yaw, observations=t.observations,
                            first_seen_ns=t.first_seen_ns, last_seen_ns=t.last_seen_ns, primitives=prims,
                            face_sd=t.face_sd,
-                           class_probs={c: float(p) for c, p in zip(CLASSES, probs) if p >= 0.05})
+                           class_probs={c: float(p) for c, p in zip(CLASSES, probs) if p >= 0.05},
+                           track_score=t.score)
 
     def _decide(self) -> None:
         """The track classifier's class and score for every published track (restored ones keep
@@ -469,10 +470,11 @@ def _track_from_object(o: SceneObject, max_weight: float) -> Track:
     n = max(int(o.observations), 1)
     w = min(float(n), max_weight)
     consistency = 0.5 + 0.5 * float(ev.max())  # Track.score's factor, undone so the score stays as saved
+    own = float(o.track_score if o.track_score is not None else o.score)
     t = Track(id=int(o.id), center=np.asarray(o.center, float), size=np.asarray(o.size, float), yaw=float(o.yaw),
               class_evidence=ev * w, weight_sum=w, existence=0.0, observations=n,
               first_seen_ns=int(o.first_seen_ns), last_seen_ns=int(o.last_seen_ns),
-              score_sum=float(o.score) * n / ((1.0 - np.exp(-n / 3.0)) * consistency), confirmed=True)
+              score_sum=own * n / ((1.0 - np.exp(-n / 3.0)) * consistency), confirmed=True)
     R = t.rotation
     t.prims_local = [((R.T @ (p.center - t.center)) / np.maximum(t.size, 1e-6),
                       (np.abs(R.T @ p.rotation) @ p.size) / np.maximum(t.size, 1e-6)) for p in o.primitives]

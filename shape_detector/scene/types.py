@@ -67,6 +67,10 @@ class SceneObject:
     #: class evidence (classes under 5% left out);
     #: empty when only ``class_name`` is known
     class_probs: dict[str, float] = field(default_factory=dict)
+    #: the track's own score (its detections' mean score, grown with consistent observations),
+    #: whatever the track classifier decided: how sure the map is that something stands there
+    #: (planning's doubt rule reads it); None when unknown (then ``score`` stands in)
+    track_score: float | None = None
 
     def to_dict(self) -> dict:
         """The JSON form (``"class"`` for ``class_name``; ``"surface"`` only when there is one)."""
@@ -78,6 +82,8 @@ class SceneObject:
              "face_sd": [round(float(v), 4) for v in np.asarray(self.face_sd, float).reshape(4)]}
         if self.class_probs:
             d["class_probs"] = {str(k): round(float(v), 3) for k, v in self.class_probs.items()}
+        if self.track_score is not None:
+            d["track_score"] = round(float(self.track_score), 4)
         if self.surface is not None and len(self.surface):
             d["surface"] = surface_to_dict(self.surface, self.center)
         return d
@@ -93,7 +99,8 @@ class SceneObject:
                    primitives=[ScenePrimitive.from_dict(p) for p in d.get("primitives", [])],
                    surface=surface_from_dict(d["surface"], d["center"]) if d.get("surface") else None,
                    face_sd=np.asarray(d.get("face_sd", np.zeros(4)), float).reshape(4),
-                   class_probs={str(k): float(v) for k, v in d.get("class_probs", {}).items()})
+                   class_probs={str(k): float(v) for k, v in d.get("class_probs", {}).items()},
+                   track_score=float(d["track_score"]) if d.get("track_score") is not None else None)
 
 
 def object_parts(o: SceneObject) -> list[ScenePrimitive]:
