@@ -12,8 +12,9 @@ It applies only to an object whose whole box footprint is occupied in the grid
 A table above a small robot, whose grid cells are only its legs, keeps the space under it.
 
 A track the map doubts (its own score, :attr:`SceneObject.track_score`, below
-:data:`DOUBT_SCORE`: mostly clutter and second tracks of one object) still blocks plans, but :func:`without_doubtful` gives the grid in which a plan
-may cross it where nothing else gets through (the planner's squeeze, :mod:`.planning`).
+:data:`DOUBT_SCORE`: mostly clutter and second tracks of one object) still blocks plans, but
+:func:`without_doubtful` gives the grid in which a plan may cross it where nothing else gets
+through (the planner's squeeze, :mod:`.planning`).
 """
 
 from __future__ import annotations
@@ -73,7 +74,7 @@ def _footprints(grid: NavGrid, o: SceneObject) -> list[tuple[slice, slice, np.nd
     return [w for p in object_parts(o) if (w := footprint_mask(grid, p.center, p.size, p.rotation)) is not None]
 
 
-def existence_score(o: SceneObject) -> float:
+def own_score(o: SceneObject) -> float:
     """How sure the map is that ``o`` stands there: the track's own score, not the track
     classifier's class probability (``score``), which also falls when two classes compete."""
     return float(o.track_score if o.track_score is not None else o.score)
@@ -81,14 +82,14 @@ def existence_score(o: SceneObject) -> float:
 
 def without_doubtful(grid: NavGrid, objects: Sequence[SceneObject], min_score: float = DOUBT_SCORE) -> NavGrid:
     """A copy of ``grid`` whose occupied cells under the parts of objects whose own score
-    (:func:`existence_score`) is below ``min_score``, and under no other object's, are unknown;
+    (:func:`own_score`) is below ``min_score``, and under no other object's, are unknown;
     ``grid`` itself when there are none."""
-    doubtful = [o for o in objects if existence_score(o) < min_score]
+    doubtful = [o for o in objects if own_score(o) < min_score]
     if not doubtful or grid.data.size == 0:
         return grid
     sure = np.zeros(grid.data.shape, bool)
     for o in objects:
-        if existence_score(o) >= min_score:
+        if own_score(o) >= min_score:
             for rs, cs, m in _footprints(grid, o):
                 sure[rs, cs] |= m
     out = grid.data.copy()

@@ -35,7 +35,8 @@ class SceneOptions:
     odom_topic: str | None = None
     pose_topic: str | None = None
     #: the map's own settings (the node's grid_resolution, inflation_radius,
-    #: scene_confirm_observations, scene_delete_misses, scene_publish_score, scene_track_classifier); None = the SceneConfig defaults
+    #: scene_confirm_observations, scene_delete_misses, scene_publish_score, scene_track_classifier);
+    #: None = the SceneConfig defaults
     config: SceneConfig | None = None
 
 

@@ -109,8 +109,8 @@ def main(args: argparse.Namespace) -> int:
         print("shape-detector evaluate-scene: --sequences, --frames and --processes must be >= 1", file=sys.stderr)
         return 2
     from ..detector import ShapeDetector
-    from .pose_noise import parse_pose_noise
     from ..scene.track_classifier import load_track_classifier
+    from .pose_noise import parse_pose_noise
     from .scene_eval import collect, score_sequences
 
     try:

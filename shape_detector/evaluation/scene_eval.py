@@ -154,7 +154,7 @@ def _world_dets(data: SequenceData) -> list[Object3D]:
     return out
 
 
-def _best_gt(objs: Sequence[Any], gts: Sequence[GTObject], thr: float = 0.25) -> list[int]:
+def best_gt(objs: Sequence[Any], gts: Sequence[GTObject], thr: float = 0.25) -> list[int]:
     """Per object the index of its best-overlapping GT (3D IoU >= thr, any class) or -1."""
     if not objs or not gts:
         return [-1] * len(objs)
@@ -178,7 +178,7 @@ def _tracking_metrics(per_frame: list[list[Any]], gts: list[GTObject]) -> tuple[
     ids: list[list[int]] = [[] for _ in gts]
     centres: list[dict[int, list[np.ndarray]]] = [{} for _ in gts]
     for objs in per_frame:
-        best = _best_gt(objs, gts)
+        best = best_gt(objs, gts)
         cand: dict[int, tuple[float, Any]] = {}
         for o, g in zip(objs, best):
             if g >= 0:
@@ -245,6 +245,17 @@ def seen_frames(data: SequenceData, min_pixels: int = 1000, min_visible: float =
     return ((data.pixels >= px) & (data.visible >= min_visible)).sum(axis=0)
 
 
+def labelled_objects(data: SequenceData, min_frames: int = 3, min_pixels: int = 1000,
+                     min_visible: float = 0.25) -> tuple[list[GTObject], list[GTObject]]:
+    """(ground truth, ignored) of one walk-through: the objects seen (:func:`seen_frames`) in at
+    least ``min_frames`` frames, and those glimpsed (some pixels in some frame) in fewer."""
+    seen = seen_frames(data, min_pixels, min_visible)
+    glimpsed = data.pixels.sum(axis=0) > 0
+    gts = [g for g, n in zip(data.gt_world, seen) if n >= min_frames]
+    ignored = [g for g, n, v in zip(data.gt_world, seen, glimpsed) if n < min_frames and v]
+    return gts, ignored
+
+
 def score_sequences(data: Sequence[SequenceData], config: Any = None, min_frames: int = 3,
                     min_pixels: int = 1000, min_visible: float = 0.25) -> dict[str, Any]:
     """The metrics of the module docstring over ``data`` (one SceneMap per sequence); the
@@ -259,10 +270,7 @@ def score_sequences(data: Sequence[SequenceData], config: Any = None, min_frames
     update_ms: list[float] = []
     best_iou: list[float] = []
     for d in data:
-        seen = seen_frames(d, min_pixels, min_visible)
-        glimpsed = d.pixels.sum(axis=0) > 0
-        gts = [g for g, n in zip(d.gt_world, seen) if n >= min_frames]
-        ignored = [g for g, n, v in zip(d.gt_world, seen, glimpsed) if n < min_frames and v]
+        gts, ignored = labelled_objects(d, min_frames, min_pixels, min_visible)
         m, per_frame = run_map(d, config)
         update_ms.append(1000.0 * m.update_seconds / max(len(d.detections), 1))  # type: ignore[attr-defined]
         final = m.objects()
@@ -272,7 +280,7 @@ def score_sequences(data: Sequence[SequenceData], config: Any = None, min_frames
         ignore_all.append([False] * len(gts) + [True] * len(ignored))
         n_obj += len(gts)
         best_iou += _same_class_iou(final, gts)
-        best = [b for b in _best_gt(final, gts) if b >= 0]
+        best = [b for b in best_gt(final, gts) if b >= 0]
         dups += sum(max(0, best.count(g) - 1) for g in set(best))
         s, j, _ = _tracking_metrics(per_frame, gts)
         switches += s

@@ -23,7 +23,6 @@ from typing import Any
 
 import numpy as np
 
-from ..box_iou import iou_matrix
 from ..classes import CLASSES
 from ..scene.track_classifier import OUTPUTS, default_path, fit, tracks_features
 
@@ -35,26 +34,19 @@ def sequence_examples(data: Any, scene_config: Any = None, min_frames: int = 3) 
     """Features (N, F) and labels (N,) (indices into ``OUTPUTS``) of the tracks that the final
     map of one walk-through (``SequenceData``) publishes, built without a track classifier."""
     from ..scene import SceneConfig
-    from .scene_eval import run_map, seen_frames
+    from .scene_eval import best_gt, labelled_objects, run_map
 
     config = replace(scene_config or SceneConfig(), track_classifier="")
     m, _ = run_map(data, config)
     tracks = [t for t in sorted(m.tracks, key=lambda t: t.id) if m.shown(t)]
-    x = tracks_features(tracks, m.floor_z)
-    seen = seen_frames(data)
-    glimpsed = data.pixels.sum(axis=0) > 0
-    gts = [g for g, n, v in zip(data.gt_world, seen, glimpsed) if v]
-    ignored = np.array([n < min_frames for g, n, v in zip(data.gt_world, seen, glimpsed) if v], bool)
-    labels = np.full(len(tracks), OUTPUTS.index("background"))
-    keep = np.ones(len(tracks), bool)
-    if tracks and gts:
-        iou = iou_matrix([m.published(t) for t in tracks], gts)
-        best = iou.argmax(1)
-        for i, j in enumerate(best):
-            if iou[i, j] >= 0.25:
-                keep[i] = not ignored[j]
-                labels[i] = CLASSES.index(gts[j].class_name)
-    return x[keep], labels[keep]
+    gts, ignored = labelled_objects(data, min_frames)
+    objects = gts + ignored
+    labels, keep = [], []
+    for j in best_gt(tracks, objects):  # a track on an ignored object teaches nothing, as it counts nothing
+        labels.append(OUTPUTS.index("background") if j < 0 else CLASSES.index(objects[j].class_name))
+        keep.append(j < len(gts))
+    k = np.array(keep, bool)
+    return tracks_features(tracks, m.floor_z)[k], np.array(labels, int)[k]
 
 
 def seed_examples(seed: int, detector: Any = None, frames: int = 40) -> tuple[np.ndarray, np.ndarray]:

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from ..classes import CLASSES
+from .tracks import tracks_state
 
 log = logging.getLogger(__name__)
 
@@ -93,13 +94,13 @@ def track_features(probs: np.ndarray, size: np.ndarray, center: np.ndarray, obse
     return out
 
 
-def tracks_features(tracks: Sequence[Any], floor_z: float = 0.0) -> np.ndarray:
-    """:func:`track_features` of scene-map ``Track`` objects."""
-    from .tracks import tracks_state
-
+def tracks_features(tracks: Sequence[Any], floor_z: float = 0.0,
+                    state: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """:func:`track_features` of scene-map ``Track`` objects; ``state``: their
+    :func:`~.tracks.tracks_state` when the caller has it already."""
     if not tracks:
         return np.zeros((0, len(FEATURES)))
-    probs, score = tracks_state(list(tracks))
+    probs, score = tracks_state(tracks) if state is None else state
     return track_features(probs, np.array([t.size for t in tracks]), np.array([t.center for t in tracks]),
                           np.array([t.observations for t in tracks]), score, floor_z)
 

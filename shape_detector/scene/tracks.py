@@ -8,8 +8,8 @@ they follow the fused box.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-
 from typing import Any
 
 import numpy as np
@@ -130,8 +130,7 @@ class Track:
     @property
     def class_probs(self) -> np.ndarray:
         """(N_CLASSES,) the class evidence normalised to sum 1 (uniform without evidence)."""
-        tot = float(self.class_evidence.sum())
-        return self.class_evidence / tot if tot > 0 else np.full(N_CLASSES, 1.0 / N_CLASSES)
+        return evidence_probs(self.class_evidence)
 
     @property
     def score(self) -> float:
@@ -262,13 +261,19 @@ def track_score(score_sum: Any, observations: Any, top_prob: Any) -> Any:
     return score_sum / n * (0.5 + 0.5 * top_prob) * (1.0 - np.exp(-np.asarray(observations, float) / 3.0))
 
 
-def tracks_state(tracks: list[Track]) -> tuple[np.ndarray, np.ndarray]:
+def evidence_probs(evidence: np.ndarray) -> np.ndarray:
+    """Class evidence (..., N_CLASSES) normalised to sum 1 along its last axis (uniform where
+    there is none)."""
+    ev = np.asarray(evidence, float)
+    tot = ev.sum(-1, keepdims=True)
+    return np.where(tot > 0, ev / np.where(tot > 0, tot, 1.0), 1.0 / N_CLASSES)
+
+
+def tracks_state(tracks: Sequence[Track]) -> tuple[np.ndarray, np.ndarray]:
     """(N, N_CLASSES) :attr:`Track.class_probs` and (N,) :attr:`Track.score` of ``tracks`` at once."""
-    ev = np.array([t.class_evidence for t in tracks], float).reshape(-1, N_CLASSES)
-    tot = ev.sum(1, keepdims=True)
-    probs = np.where(tot > 0, ev / np.where(tot > 0, tot, 1.0), 1.0 / N_CLASSES)
+    probs = evidence_probs(np.array([t.class_evidence for t in tracks], float).reshape(-1, N_CLASSES))
     obs = np.array([t.observations for t in tracks], float)
-    return probs, track_score(np.array([t.score_sum for t in tracks], float), obs, probs.max(1) if len(ev) else obs)
+    return probs, track_score(np.array([t.score_sum for t in tracks], float), obs, probs.max(1))
 
 
 def _faces(center: np.ndarray, size: np.ndarray, R: np.ndarray, origin: np.ndarray) -> np.ndarray:
