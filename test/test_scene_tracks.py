@@ -126,6 +126,22 @@ def test_duplicate_tracks_merge():
     assert len(m.objects()) == 1 and m.objects()[0].id == 1
 
 
+def test_a_displaced_duplicate_is_dropped_once_the_object_has_a_strong_track():
+    # early views place the chair 38 cm to the side (a confirmed but weak track), later ones
+    # where it stands: the first track overlaps the second in part (IoU ~0.14) and holds a
+    # tenth of its weight, so it is a displaced duplicate, not a second chair
+    there = detection(*CHAIR, T0, score=0.95)
+    for config, early_class, kept in ((SceneConfig(), "chair", {2}),
+                                      (SceneConfig(displaced_iou=0.0), "chair", {1, 2}),
+                                      (SceneConfig(), "table", {1, 2})):  # another class: another object
+        m = SceneMap(config)
+        early = detection((3.0, 0.38, 0.45), (0.5, 0.5, 0.9), 0.0, T0, cls=early_class, score=0.8)
+        _feed(m, [[early]] * 4)
+        assert [o.id for o in m.objects()] == [1]
+        _feed(m, [[there]] * 12)
+        assert {o.id for o in m.objects()} == kept, (config.displaced_iou, early_class)
+
+
 def test_quarter_turned_box_is_the_same_box():
     m = SceneMap()
     a = detection((3.0, 1.5, 0.375), (1.2, 0.8, 0.75), 0.0, T0, cls="table")

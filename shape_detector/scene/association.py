@@ -7,10 +7,12 @@ detection's class. A single frame's class flip therefore costs at most ``class_w
 and still matches a nearby track; two different objects side by side keep their own
 tracks because the Hungarian assignment takes the cheapest joint pairing.
 
-Two tracks are one object (:func:`duplicate_pairs`) when their boxes overlap a lot (3D
+Two tracks are one object (:func:`duplicates`) when their boxes overlap a lot (3D
 IoU), or when one is mostly nested in the other and either their classes agree or it has
 far less evidence (a partial view of a big object); a chair pushed under a table is nested
-in it but keeps its own track.
+in it but keeps its own track. A weak track that overlaps a much stronger one of its class
+only in part is a displaced duplicate (early views placed it beside the object) and is
+dropped.
 """
 
 from __future__ import annotations
@@ -96,24 +98,34 @@ def class_similarity(a: Track, b: Track) -> float:
     return float(a.class_probs @ b.class_probs)
 
 
-def duplicate_pairs(tracks: Sequence[Track], min_iou: float = 0.4, min_ios: float = 0.6,
-                    min_same_class: float = 0.2) -> list[tuple[int, int]]:
-    """Index pairs (i, j), i < j, of tracks that are one object, most overlapping first:
-    3D IoU >= ``min_iou`` whatever their classes, or intersection over the smaller box
-    >= ``min_ios`` when their classes agree with probability >= ``min_same_class`` (a
-    chair pushed under a table overlaps it but keeps its own track)."""
+def duplicates(tracks: Sequence[Track], min_iou: float = 0.4, min_ios: float = 0.6,
+                    min_same_class: float = 0.2, displaced_iou: float = 0.0,
+                    displaced_share: float = 0.3) -> tuple[list[tuple[int, int]], list[int]]:
+    """Tracks that are one object: (index pairs (i, j), i < j, to merge, most overlapping first;
+    indices of displaced duplicates to drop).
+
+    A pair merges at 3D IoU >= ``min_iou`` whatever their classes, or at intersection over the
+    smaller box >= ``min_ios`` when their classes agree with probability >= ``min_same_class``
+    (a chair pushed under a table overlaps it but keeps its own track). A track is a displaced
+    duplicate when it overlaps (IoU >= ``displaced_iou`` > 0) a track of agreeing class that
+    has at least 1 / ``displaced_share`` times its fusion weight: a few early, misplaced views
+    of an object another track now holds. Its evidence is dropped rather than merged, which
+    would pull the good box towards the misplaced one."""
     n = len(tracks)
     if n < 2:
-        return []
+        return [], []
     c = np.stack([t.center for t in tracks])
     r = 0.5 * np.stack([np.linalg.norm(t.size) for t in tracks])
     near = np.linalg.norm(c[:, None] - c[None], axis=2) < (r[:, None] + r[None])
-    found = []
+    found, displaced = [], set()
     for i, j in zip(*np.nonzero(np.triu(near, 1))):
         iou, ios = overlap(tracks[i], tracks[j])
         wi, wj = tracks[i].weight_sum, tracks[j].weight_sum
         weak = min(wi, wj) <= WEAK_SHARE * max(wi, wj)  # a weak box nested in a strong one is part of it
         if iou >= min_iou or (ios >= min_ios and (weak or class_similarity(tracks[i], tracks[j]) >= min_same_class)):
             found.append((max(iou, ios), int(i), int(j)))
+        elif (0.0 < displaced_iou <= iou and min(wi, wj) <= displaced_share * max(wi, wj)
+              and class_similarity(tracks[i], tracks[j]) >= min_same_class):
+            displaced.add(int(i) if wi < wj else int(j))
     found.sort(reverse=True)
-    return [(i, j) for _, i, j in found]
+    return [(i, j) for _, i, j in found], sorted(displaced)

@@ -13,7 +13,8 @@ objects (camera optical frame: x right, y down, z forward), the pose ``T_world_c
 3. tracks not matched whose space the depth shows empty lose support (:mod:`.visibility`)
    and are removed after ``delete_misses`` such frames; out-of-view or hidden tracks stay;
    tentative tracks not seen again within ``tentative_max_age`` frames are dropped;
-4. overlapping tracks merge (the older id stays);
+4. overlapping tracks merge (the older id stays); a weak track overlapping a far stronger one
+   of its class in part is a displaced duplicate and dropped;
 5. the floor seen in the depth is added to the grid (:mod:`.grid`), and the depth points
    above it to the observed surfaces (:mod:`.surface`), which ray casts land on;
 6. the track classifier (:mod:`.track_classifier`) decides each published track's class and
@@ -37,7 +38,7 @@ import numpy as np
 
 from ..classes import CLASSES
 from ..types import Object3D
-from .association import associate, class_similarity, cost_matrix, duplicate_pairs, overlap
+from .association import associate, class_similarity, cost_matrix, duplicates, overlap
 from .grid import (FloorMemory, NavGrid, build_grid, depth_points_world, estimate_floor_z, floor_cells_seen,
                    floor_from_estimates)
 from .json_io import grid_from_dict, load_dict, scene_to_dict, structure_from_dict, write_json
@@ -107,6 +108,11 @@ class SceneConfig:
     merge_iou: float = 0.4
     #: two tracks of agreeing class whose intersection over the smaller box is above this merge
     merge_ios: float = 0.6
+    #: a track overlapping (3D IoU at least this) one of agreeing class with far more fusion weight
+    #: (``displaced_share``) is a displaced duplicate and dropped; 0 = off
+    displaced_iou: float = 0.1
+    #: ... at most this share of the other's weight
+    displaced_share: float = 0.3
     #: track classifier deciding published tracks' classes and scores from the whole track
     #: (:mod:`.track_classifier`): "default" (the packaged one), a weights file, or "" (off: the
     #: accumulated class evidence decides)
@@ -355,14 +361,19 @@ class SceneMap:
     def _merge(self) -> None:
         c = self.config
         while True:
-            pairs = duplicate_pairs(self.tracks, c.merge_iou, c.merge_ios)
+            pairs, displaced = duplicates(self.tracks, c.merge_iou, c.merge_ios,
+                                               displaced_iou=c.displaced_iou, displaced_share=c.displaced_share)
             if not pairs:
-                return
+                break
             i, j = pairs[0]
             a, b = self.tracks[i], self.tracks[j]
             keep, gone = (a, b) if (a.confirmed, -a.id) >= (b.confirmed, -b.id) else (b, a)
             keep.absorb(gone)
             self.tracks.remove(gone)
+        if displaced:
+            gone_ids = {self.tracks[k].id for k in displaced}
+            log.debug("scene map: displaced duplicate tracks %s dropped", sorted(gone_ids))
+            self.tracks = [t for t in self.tracks if t.id not in gone_ids]
 
     def integrate_floor(self, T: np.ndarray, depth: np.ndarray, K: np.ndarray) -> None:
         """Add the floor seen in ``depth`` (metres; ``K`` its intrinsics) from pose ``T`` to the
