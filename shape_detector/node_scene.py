@@ -49,7 +49,7 @@ def scene_config(p: dict[str, Any]) -> SceneConfig:
                        confirm_observations=int(p["scene_confirm_observations"]),
                        delete_misses=int(p["scene_delete_misses"]),
                        publish_score=float(p["scene_publish_score"]),
-                       track_classifier=str(p.get("scene_track_classifier", "default")))
+                       track_classifier=str(p["scene_track_classifier"]))
 
 
 def newest_stamp_ns(kind: str, msg: Any) -> int:

@@ -74,22 +74,16 @@ def _footprints(grid: NavGrid, o: SceneObject) -> list[tuple[slice, slice, np.nd
     return [w for p in object_parts(o) if (w := footprint_mask(grid, p.center, p.size, p.rotation)) is not None]
 
 
-def own_score(o: SceneObject) -> float:
-    """How sure the map is that ``o`` stands there: the track's own score, not the track
-    classifier's class probability (``score``), which also falls when two classes compete."""
-    return float(o.track_score if o.track_score is not None else o.score)
-
-
 def without_doubtful(grid: NavGrid, objects: Sequence[SceneObject], min_score: float = DOUBT_SCORE) -> NavGrid:
     """A copy of ``grid`` whose occupied cells under the parts of objects whose own score
-    (:func:`own_score`) is below ``min_score``, and under no other object's, are unknown;
+    (:attr:`SceneObject.own_score`) is below ``min_score``, and under no other object's, are unknown;
     ``grid`` itself when there are none."""
-    doubtful = [o for o in objects if own_score(o) < min_score]
+    doubtful = [o for o in objects if o.own_score < min_score]
     if not doubtful or grid.data.size == 0:
         return grid
     sure = np.zeros(grid.data.shape, bool)
     for o in objects:
-        if own_score(o) >= min_score:
+        if o.own_score >= min_score:
             for rs, cs, m in _footprints(grid, o):
                 sure[rs, cs] |= m
     out = grid.data.copy()

@@ -362,7 +362,7 @@ class SceneMap:
         c = self.config
         while True:
             pairs, displaced = duplicates(self.tracks, c.merge_iou, c.merge_ios,
-                                               displaced_iou=c.displaced_iou, displaced_share=c.displaced_share)
+                                          displaced_iou=c.displaced_iou, displaced_share=c.displaced_share)
             if not pairs:
                 break
             i, j = pairs[0]
@@ -424,9 +424,10 @@ class SceneMap:
         if self.classifier is None or not self.tracks:
             return
         probs, scores = tracks_state(self.tracks)  # at once: each Track.score call costs ~15 us
-        idx = [i for i, (t, s) in enumerate(zip(self.tracks, scores))
-               if published_rule(t.confirmed, t.restored, s, self.config.publish_score)]
-        if not idx:
+        idx = np.flatnonzero(published_rule(np.array([t.confirmed for t in self.tracks]),
+                                            np.array([t.restored for t in self.tracks]), scores,
+                                            self.config.publish_score))
+        if not len(idx):
             return
         shown = [self.tracks[i] for i in idx]
         x = tracks_features(shown, self.floor_z, (probs[idx], scores[idx]))
@@ -479,11 +480,10 @@ def _track_from_object(o: SceneObject, max_weight: float) -> Track:
     ev = ev / ev.sum()
     n = max(int(o.observations), 1)
     w = min(float(n), max_weight)
-    own = float(o.track_score if o.track_score is not None else o.score)
     t = Track(id=int(o.id), center=np.asarray(o.center, float), size=np.asarray(o.size, float), yaw=float(o.yaw),
               class_evidence=ev * w, weight_sum=w, existence=0.0, observations=n,
               first_seen_ns=int(o.first_seen_ns), last_seen_ns=int(o.last_seen_ns),
-              score_sum=own * n / float(track_score(n, n, ev.max())), confirmed=True)  # Track.score = own
+              score_sum=o.own_score * n / float(track_score(n, n, ev.max())), confirmed=True)  # Track.score = own_score
     R = t.rotation
     t.prims_local = [((R.T @ (p.center - t.center)) / np.maximum(t.size, 1e-6),
                       (np.abs(R.T @ p.rotation) @ p.size) / np.maximum(t.size, 1e-6)) for p in o.primitives]

@@ -72,6 +72,13 @@ class SceneObject:
     #: (planning's doubt rule reads it); None when unknown (then ``score`` stands in)
     track_score: float | None = None
 
+    @property
+    def own_score(self) -> float:
+        """How sure the map is that the object stands there: :attr:`track_score`, else
+        :attr:`score` (not the track classifier's class probability, which also falls when two
+        classes compete)."""
+        return float(self.track_score if self.track_score is not None else self.score)
+
     def to_dict(self) -> dict:
         """The JSON form (``"class"`` for ``class_name``; ``"surface"`` only when there is one)."""
         d = {"id": int(self.id), "class": self.class_name, "score": float(self.score),
