@@ -66,7 +66,7 @@ class FrustumPredictor:
     and a predictor that finds them cached never imports torch. ``num_threads``: intra-op
     threads of torch / of each onnxruntime session (None: torch's default, one session thread).
     ``workers`` > 1 (CPU): a batch of at least ``2 * min_chunk`` frustums is split into
-    that many chunks run on as many Python threads, each single-threaded -- data
+    up to that many chunks run on as many Python threads, each single-threaded -- data
     parallelism without OpenMP's barrier waits (which make 2 intra-op threads slower than
     1 on a loaded 2-core machine); both backends release the GIL while a graph runs.
     ``precision`` (torch): ``"fp32"`` (default), ``"bf16"`` (bfloat16 autocast: about 2x
@@ -87,7 +87,7 @@ class FrustumPredictor:
         device: str | torch.device = "cpu",
         num_threads: int | None = None,
         workers: int = 1,
-        min_chunk: int = 3,
+        min_chunk: int = 1,
         precision: str = "fp32",
         trace: bool = True,
         backend: str = "auto",
