@@ -99,8 +99,8 @@ def class_similarity(a: Track, b: Track) -> float:
 
 
 def duplicates(tracks: Sequence[Track], min_iou: float = 0.4, min_ios: float = 0.6,
-                    min_same_class: float = 0.2, displaced_iou: float = 0.0,
-                    displaced_share: float = 0.3) -> tuple[list[tuple[int, int]], list[int]]:
+               min_same_class: float = 0.2, displaced_iou: float = 0.0,
+               displaced_share: float = 0.3) -> tuple[list[tuple[int, int]], list[int]]:
     """Tracks that are one object: (index pairs (i, j), i < j, to merge, most overlapping first;
     indices of displaced duplicates to drop).
 
