@@ -22,6 +22,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
                          "train the proposal classifier on the network's built-in-proposal candidates"),
     "train-proposer": ("shape_detector.training.train_proposer",
                        "train the learned 2D proposer on generated frames (writes an ONNX file)"),
+    "prune": ("shape_detector.training.prune",
+              "narrow a trained network's widest per-point layers (structured pruning), to fine-tune"),
     "weights-info": ("shape_detector.training.weights_info", "print a weights file's format, provenance and metrics"),
     "evaluate": ("shape_detector.evaluation.cli", "evaluate weights on a held-out generated set"),
     "bench": ("shape_detector.bench", "benchmarks that print numbers (synth, network, proposals, node)"),
