@@ -107,7 +107,7 @@ def test_cli_writes_a_loadable_pruned_weights_file(tmp_path, capsys):
     from shape_detector.model.io import load_weights, save_weights
     from shape_detector.training.frustum_dataset import save
 
-    src = save_weights(_net(), tmp_path / "small.pt")
+    src = save_weights(_net(), tmp_path / "small.pt", meta={"tasks": ["box", "cls", "shape"], "val": {"box_iou": 0.5}})
     pts, cls = _inputs(8)
     data = save({"points": pts, "class_id": cls.astype(np.int64)}, tmp_path / "frustums.npz")
     out = tmp_path / "pruned.pt"
@@ -116,6 +116,7 @@ def test_cli_writes_a_loadable_pruned_weights_file(tmp_path, capsys):
     model, meta = load_weights(out)
     assert model.box_mlp.out_channels == 40 and model.seg_mlp.out_channels == 32
     assert meta["pruned_from"]["widths"] == {"box_mlp": 40, "seg_mlp": 32}
+    assert meta["tasks"] == ["box", "cls", "shape"] and "val" not in meta
     assert "box_mlp: 56 -> 40 channels" in capsys.readouterr().out
     assert main(["prune", "--weights", str(src), "--data", str(data), "--out", str(out), "--width", "box_mlp"]) == 2
 

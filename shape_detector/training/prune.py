@@ -153,7 +153,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frustums", type=int, default=600, help="frustums drawn from each file (default %(default)s)")
     p.add_argument("--width", action="append", default=[], metavar="NAME=W",
                    help=f"keep W channels of NAME's last layer (repeatable; {', '.join(PRUNABLE)})")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the frustum draw (default %(default)s)")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -187,7 +187,8 @@ def main(args: argparse.Namespace) -> int:
     before = sum(p.numel() for p in model.parameters())
     after = sum(p.numel() for p in pruned.parameters())
     print(f"parameters {before:,} -> {after:,}")
-    save_weights(pruned, args.out, meta={**(meta or {}), "pruned_from": {"path": str(src), "sha256": sha256_file(src),
-                                                                          "widths": widths}})
+    # the source's training record (config, metrics) does not describe the pruned network: only its tasks carry over
+    save_weights(pruned, args.out, meta={"tasks": (meta or {}).get("tasks"),
+                                         "pruned_from": {"path": str(src), "sha256": sha256_file(src), "widths": widths}})
     print(f"wrote {args.out}")
     return 0
