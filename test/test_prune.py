@@ -102,6 +102,16 @@ def test_bad_widths_are_refused(widths):
         prune_network(net, widths, channel_scores(net, pts, cls))
 
 
+def test_a_folded_network_is_refused():
+    import copy
+
+    net = _net()
+    pts, cls = _inputs(2)
+    scores = channel_scores(net, pts, cls)
+    with pytest.raises(ValueError, match="folded"):
+        prune_network(copy.deepcopy(net).fuse_batchnorm(), {"box_mlp": 40}, scores)
+
+
 def test_cli_writes_a_loadable_pruned_weights_file(tmp_path, capsys):
     from shape_detector.cli import main
     from shape_detector.model.io import load_weights, save_weights

@@ -19,6 +19,7 @@ import torch
 
 from ..model.config import ModelConfig
 from ..model.network import FrustumShapeNet
+from ..model.pointnet import fuse_linear_bn
 
 #: the prunable PointNets (child name) -> the model-config key holding their widths
 PRUNABLE: dict[str, str] = {
@@ -56,11 +57,9 @@ def readers(model: FrustumShapeNet) -> dict[str, list[tuple[str, int]]]:
 
 def _reader_weight(model: FrustumShapeNet, name: str) -> torch.Tensor:
     """A reader's weight (out, in) with its BatchNorm's per-row scale applied where it has one."""
-    w = model.get_submodule(name).weight.detach()
+    linear = model.get_submodule(name)
     bn = model.seg_head_bn if name == "seg_head_global" else model.get_submodule(name.rsplit(".", 1)[0]).bn
-    if bn is None:
-        return w
-    return w * (bn.weight / torch.sqrt(bn.running_var + bn.eps)).detach().unsqueeze(1)
+    return (linear if bn is None else fuse_linear_bn(linear, bn)).weight.detach()
 
 
 @torch.no_grad()
@@ -109,6 +108,8 @@ def prune_network(model: FrustumShapeNet, widths: dict[str, int], scores: dict[s
     """A new network whose PointNets named in ``widths`` (keys of :data:`PRUNABLE`) keep that
     many last-layer channels, the best by ``scores`` (:func:`channel_scores`), in their
     original order; every other parameter is copied. ``model`` must not be BatchNorm-folded."""
+    if getattr(model, "_fused", False):
+        raise ValueError("prune the trained network, not its BatchNorm-folded inference copy")
     bad = sorted(set(widths) - set(PRUNABLE))
     if bad:
         raise ValueError(f"not prunable: {bad} (choose from {sorted(PRUNABLE)})")
@@ -123,6 +124,7 @@ def prune_network(model: FrustumShapeNet, widths: dict[str, int], scores: dict[s
         keep[n] = torch.sort(torch.argsort(scores[n], descending=True)[: int(w)]).values
         cfg[PRUNABLE[n]] = list(cfg[PRUNABLE[n]][:-1]) + [int(w)]
     state = dict(model.state_dict())
+    reads = readers(model)
     columns: dict[str, list[tuple[int, int, torch.Tensor]]] = {}
     for n, idx in keep.items():
         mlp = getattr(model, n)
@@ -130,7 +132,7 @@ def prune_network(model: FrustumShapeNet, widths: dict[str, int], scores: dict[s
         for key, t in state.items():
             if key.startswith(prefix) and t.dim() >= 1 and t.shape[0] == mlp.out_channels:
                 state[key] = t[idx]
-        for name, col in readers(model)[n]:
+        for name, col in reads[n]:
             columns.setdefault(name, []).append((col, mlp.out_channels, idx))
     for name, parts in columns.items():
         w = state[name + ".weight"]
