@@ -317,7 +317,7 @@ def test_a_spent_time_budget_stops_before_the_next_phase(tmp_path):
 
 
 @pytest.mark.parametrize("name, width", [("shipped", 1.0), ("collapsed", 1.0), ("half_width", 0.5),
-                                         ("half_width_distilled", 0.5)])
+                                         ("half_width_distilled", 0.5), ("pruned", None)])
 def test_every_phase_of_a_packaged_recipe_can_start_from_its_parent(name, width):
     """Each network phase of a packaged recipe accepts its parent's network (branches it adds
     start as no-ops, nothing else differs) and names parts its network has; the network it
@@ -331,13 +331,23 @@ def test_every_phase_of_a_packaged_recipe_can_start_from_its_parent(name, width)
         if ph.get("kind") == "classifier":
             assert ph["network"] in nets
             continue
+        if ph.get("kind") == "prune":
+            from shape_detector.training.prune import prune_network
+
+            parent = nets[ph["network"]]
+            scores = {n: torch.rand(getattr(parent, n).out_channels) for n in ph["widths"]}
+            nets[ph["name"]] = prune_network(parent, ph["widths"], scores)
+            continue
         cfg = rcp.phase_train_config(r, ph)
         net = FrustumShapeNet(cfg.model_config())
         if ph.get("init"):
             load_init(net, nets[ph["init"]], cfg.reinit)
         if cfg.trainable:
             assert freeze(net, cfg.trainable), ph["name"]
-        if cfg.teacher:  # the teacher's heads are the ones this phase trains
+        if cfg.teacher in nets:  # a phase as the teacher: its heads are the ones this phase trains
+            for key in ("num_classes", "num_heading_bins", "num_size_clusters"):
+                assert getattr(nets[cfg.teacher].config, key) == getattr(net.config, key), ph["name"]
+        elif cfg.teacher:
             from shape_detector.training.train import load_teacher
 
             load_teacher(cfg, net, torch.device("cpu"))
@@ -346,9 +356,79 @@ def test_every_phase_of_a_packaged_recipe_can_start_from_its_parent(name, width)
     from shape_detector.model.config import ModelConfig
 
     final = rcp.phase_train_config(r, rcp.phase(r, r["exports"]["default.pt"])).model_config().to_dict()
+    if width is None:  # pruned: the exported phase trains the pruned network it starts from
+        assert nets[r["exports"]["default.pt"]].config.to_dict() == final
+        return
     shipped = ModelConfig().to_dict()
     for k, v in shipped.items():
         if k.endswith(("widths", "_fc")):
             assert final[k] == [int(w * width) for w in v], k
         else:
             assert final[k] == v, k
+
+
+@pytest.mark.slow
+def test_prune_and_distil_phases_run_after_an_adopted_phase(tmp_path, capsys):
+    """A prune phase narrows an earlier phase's network and a distilled phase fine-tunes it with
+    that earlier phase as the teacher; both run in a directory where the earlier phase was
+    only adopted from its weights file, and their keys hold the teacher's sha256."""
+    from shape_detector.model.io import load_weights
+    from shape_detector.training.runner import adopt, run_recipe
+
+    child = json.loads(TINY.read_text())
+    child["inherits"] = str(TINY.parent / child["inherits"])
+    widths = {"seg_widths": [16, 16, 24], "box_widths": [16, 24]}
+    child["exports"] = {"default.pt": "distil"}
+    child["phases"] = [
+        child["phases"][0],
+        {"name": "prune", "kind": "prune", "network": "fresh", "score_data": ["gt_val", "gt_train"], "frustums": 20,
+         "widths": {"seg_mlp": 24, "box_mlp": 24}},
+        {"name": "distil", "init": "prune", "train_data": ["gt_train"], "val_data": "gt_val", "seed": 2,
+         "train": {"epochs": 1, "teacher": "fresh", "model": widths,
+                   "loss_weights": {"distill_seg": 1.0, "distill_box": 1.0, "distill_cls": 0.5}}},
+    ]
+    r = rcp.load_recipe(_write(tmp_path / "pruned.json", child))
+    data = tmp_path / "data"
+    run_recipe(r, tmp_path / "a", data, only=["fresh"], say=lambda s: None)
+    fresh = tmp_path / "a" / "fresh" / json.loads((tmp_path / "a" / "fresh" / "result.json").read_text())["file"]
+
+    out = tmp_path / "b"
+    assert adopt(r, out, [fresh], say=lambda s: None) == ["fresh"]
+    assert adopt(r, out, [fresh], say=lambda s: None) == []  # a phase with a result is left alone
+    said: list[str] = []
+    run_recipe(r, out, data, only=["prune", "distil"], say=said.append)
+    pruned, meta = load_weights(out / "prune" / "pruned.pt")
+    assert tuple(pruned.config.seg_widths) == (16, 16, 24) and tuple(pruned.config.box_widths) == (16, 24)
+    assert meta["pruned_from"]["sha256"] == sha256_file(fresh) and meta["provenance"]["phase"] == "prune"
+    res = json.loads((out / "distil" / "result.json").read_text())
+    net, dmeta = load_weights(out / "distil" / res["file"])
+    assert tuple(net.config.seg_widths) == (16, 16, 24)
+    assert dmeta["teacher"]["sha256"] == sha256_file(fresh)
+    assert {p["phase"] for p in dmeta["provenance"]["parents"]} == {"prune", "fresh"}
+    said = []
+    run_recipe(r, out, data, only=["prune", "distil"], say=said.append)
+    assert sum("skipped" in s for s in said) == 2, said
+
+    # only weights the runner wrote for a phase of this recipe are adopted
+    other = json.loads(TINY.read_text())
+    other["inherits"] = child["inherits"]
+    with pytest.raises(ValueError, match="provenance"):
+        adopt(rcp.load_recipe(_write(tmp_path / "other.json", other)), tmp_path / "c", [fresh])
+    with pytest.raises(ValueError, match="provenance"):
+        adopt(r, tmp_path / "c", [WEIGHTS / "classifier.pt"])
+
+
+@pytest.mark.parametrize("phase, message", [
+    ({"name": "p", "kind": "prune", "network": "x", "score_data": ["gt"], "widths": {"seg_mlp": 8}}, "earlier phase"),
+    ({"name": "p", "kind": "prune", "network": "a", "score_data": ["gt"], "widths": {"seg": 8}}, "width seg"),
+    ({"name": "p", "kind": "prune", "network": "a", "score_data": ["gt"], "widths": {"seg_mlp": 0}}, "positive"),
+    ({"name": "p", "kind": "prune", "network": "a", "widths": {"seg_mlp": 8}}, "no score_data"),
+    ({"name": "p", "kind": "prune", "network": "a", "score_data": ["nope"], "widths": {"seg_mlp": 8}}, "unknown frustum"),
+    ({"name": "p", "train_data": ["gt"], "train": {"teacher": "q"}}, "teacher 'q' is not an earlier phase"),
+])
+def test_bad_prune_and_teacher_phases_are_refused(tmp_path, phase, message):
+    phases = [{"name": "a", "train_data": ["gt"]}, phase, {"name": "q", "train_data": ["gt"]}]
+    p = _write(tmp_path / "r.json", {"datasets": {"train": {"seed": 1, "frames": 2}},
+                                     "frustums": {"gt": {"dataset": "train"}}, "phases": phases})
+    with pytest.raises(ValueError, match=message):
+        rcp.load_recipe(p)

@@ -3,7 +3,7 @@
 A recipe (see :mod:`.recipe`; the shipped weights' is ``recipes/shipped.json``)::
 
     shape-detector train --recipe shipped --data-root data --out runs/shipped \\
-        [--phase NAME ...] [--max-minutes M] [--export shape_detector/weights]
+        [--phase NAME ...] [--max-minutes M] [--export shape_detector/weights] [--adopt WEIGHTS ...]
 
 runs its phases in order; each is skipped when its weights exist with a matching key and
 resumes from its checkpoint otherwise. ``--max-minutes`` stops the run (exit status 3;
@@ -34,6 +34,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data-root", type=Path, default=Path("data"), help="where the recipe's data sets live")
     p.add_argument("--export", type=Path, default=None, metavar="DIR",
                    help="after the recipe, copy the results it exports (e.g. default.pt) into DIR")
+    p.add_argument("--adopt", type=Path, nargs="+", default=None, metavar="WEIGHTS",
+                   help="take these runner-written weights (e.g. shape_detector/weights/default.pt) as the results "
+                        "of the phases their provenance names, where the run directory has none")
     p.add_argument("--config", type=Path, default=None, help="ad-hoc run: training config JSON")
     p.add_argument("--data", type=Path, nargs="+", default=None,
                    help="ad-hoc run: shard directories and/or frustum .npz files (concatenated)")
@@ -90,7 +93,7 @@ def main_recipe(args: argparse.Namespace) -> int:
     """Run a recipe (see the module docstring); exit 3 when the time budget stopped it."""
     from . import distributed as ddp
     from .recipe import load_recipe
-    from .runner import Stopped, export, run_recipe
+    from .runner import Stopped, adopt, export, run_recipe
 
     r = load_recipe(args.recipe)
     env, dev = ddp.setup(args.device)
@@ -98,6 +101,13 @@ def main_recipe(args: argparse.Namespace) -> int:
     out = args.out or Path("runs") / Path(r["file"]).stem
     say = (lambda s: print(s, flush=True)) if env.is_main else (lambda s: None)
     say(f"recipe {r['file']} (sha256 {r['sha256'][:12]}): {len(r['phases'])} phases -> {out}")
+    if args.adopt and env.is_main:
+        try:
+            adopt(r, out, args.adopt, say)
+        except (OSError, ValueError) as e:
+            print(f"shape-detector train: --adopt: {e}", file=sys.stderr)
+            return 2
+    ddp.barrier(env)
     try:
         results = run_recipe(r, out, args.data_root, args.phase, device, args.max_minutes, say)
     except Stopped as e:
@@ -151,7 +161,7 @@ def main_single(args: argparse.Namespace) -> int:
 _AD_HOC = {"config": None, "data": None, "val_data": None, "seed": 0, "epochs": None, "resume": False, "init": None,
            "tasks": None, "max_frames": None, "max_val_frames": None, "threads": None, "set": []}
 #: options of a recipe run only
-_RECIPE_ONLY = {"phase": None, "export": None}
+_RECIPE_ONLY = {"phase": None, "export": None, "adopt": None}
 
 
 def _misplaced(args: argparse.Namespace, options: dict[str, Any]) -> list[str]:

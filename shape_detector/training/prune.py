@@ -147,6 +147,30 @@ def prune_network(model: FrustumShapeNet, widths: dict[str, int], scores: dict[s
     return out.eval()
 
 
+def prune_on(model: FrustumShapeNet, sets: list[dict], widths: dict[str, int], frustums: int = 600,
+             seed: int = 0) -> tuple[FrustumShapeNet, dict[str, torch.Tensor]]:
+    """``model`` pruned to ``widths`` by channel scores over ``frustums`` frustums drawn from
+    each frustum set in ``sets`` (training caches: ``points``, ``class_id``; seeded draw).
+    Returns the pruned network and the scores."""
+    rng = np.random.default_rng(seed)
+    pts, cls = [], []
+    for d in sets:
+        idx = np.sort(rng.choice(len(d["class_id"]), min(frustums, len(d["class_id"])), replace=False))
+        pts.append(d["points"][idx])
+        cls.append(d["class_id"][idx])
+    scores = channel_scores(model, np.concatenate(pts), np.concatenate(cls))
+    return prune_network(model, widths, scores), scores
+
+
+def pruned_meta(source_meta: dict | None, source: Path, widths: dict[str, int]) -> dict:
+    """Meta of a pruned weights file: only the source's tasks carry over (its training record
+    does not describe the pruned network), and where it was pruned from."""
+    from ..digests import sha256_file
+
+    return {"tasks": (source_meta or {}).get("tasks"),
+            "pruned_from": {"path": str(source), "sha256": sha256_file(source), "widths": dict(widths)}}
+
+
 def configure_parser(p: argparse.ArgumentParser) -> None:
     """Options of ``shape-detector prune``."""
     p.add_argument("--out", required=True, help="pruned weights file to write")
@@ -160,7 +184,6 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     """Score, prune and save; prints each layer's width and the share of the score it keeps."""
-    from ..digests import sha256_file
     from ..model.io import default_weights_path, load_weights, save_weights
     from .frustum_dataset import load
 
@@ -173,15 +196,7 @@ def main(args: argparse.Namespace) -> int:
         widths[name] = int(w)
     src = Path(args.weights) if args.weights else default_weights_path()
     model, meta = load_weights(src)
-    rng = np.random.default_rng(args.seed)
-    pts, cls = [], []
-    for f in args.data:
-        d = load(f)
-        idx = np.sort(rng.choice(len(d["class_id"]), min(args.frustums, len(d["class_id"])), replace=False))
-        pts.append(d["points"][idx])
-        cls.append(d["class_id"][idx])
-    scores = channel_scores(model, np.concatenate(pts), np.concatenate(cls))
-    pruned = prune_network(model, widths, scores)
+    pruned, scores = prune_on(model, [load(f) for f in args.data], widths, args.frustums, args.seed)
     for n, w in widths.items():
         s = scores[n]
         kept = torch.sort(s, descending=True).values[:w].sum() / s.sum()
@@ -189,8 +204,6 @@ def main(args: argparse.Namespace) -> int:
     before = sum(p.numel() for p in model.parameters())
     after = sum(p.numel() for p in pruned.parameters())
     print(f"parameters {before:,} -> {after:,}")
-    # the source's training record (config, metrics) does not describe the pruned network: only its tasks carry over
-    save_weights(pruned, args.out, meta={"tasks": (meta or {}).get("tasks"),
-                                         "pruned_from": {"path": str(src), "sha256": sha256_file(src), "widths": widths}})
+    save_weights(pruned, args.out, meta=pruned_meta(meta, src, widths))
     print(f"wrote {args.out}")
     return 0

@@ -11,7 +11,8 @@ other value, lists included, replaces). The resolved recipe has::
     phase_overrides  TrainConfig fields merged over every network phase's own (tiny test runs)
     classifier_overrides  ClassifierTrainConfig fields merged over every classifier phase's own
     exports       file name -> phase whose result ``--export DIR`` copies there
-    phases        [phase, ...] in training order
+    phases        [phase, ...] in training order (a file's ``append_phases`` go after the
+                  phases it inherits: a recipe that continues its base)
 
 A network phase: ``name``; ``init`` (an earlier phase, or null for a fresh network);
 ``train_data`` (frustum set names, concatenated); ``val_data`` (one frustum set);
@@ -19,7 +20,12 @@ A network phase: ``name``; ``init`` (an earlier phase, or null for a fresh netwo
 (TrainConfig fields over ``defaults``: model, epochs, lr, trainable parts, tasks, threads).
 A classifier phase (``"kind": "classifier"``): ``network`` (the phase whose weights propose
 and first-pass the candidates), ``datasets``, ``seed``, ``proposals``, ``proposal_source``
-(the built-in proposer, default ``geometric``), ``workers``, ``train`` (ClassifierTrainConfig fields). Nothing in a recipe is a wall-clock budget.
+(the built-in proposer, default ``geometric``), ``workers``, ``train`` (ClassifierTrainConfig fields).
+A prune phase (``"kind": "prune"``, :mod:`.prune`): ``network`` (an earlier phase), ``widths``
+(PointNet name -> channels its last layer keeps), ``score_data`` (frustum sets the channels are
+scored on), ``frustums`` (drawn from each, default 600), ``seed``. A network phase's
+``teacher`` may name an earlier phase (distillation from that phase's result).
+Nothing in a recipe is a wall-clock budget.
 """
 
 from __future__ import annotations
@@ -35,7 +41,8 @@ from ..digests import sha256_json
 
 RECIPES_DIR = Path(__file__).resolve().parent / "recipes"
 _PHASE_KEYS = {"name", "kind", "comment", "init", "train_data", "val_data", "seed", "keep", "train",
-               "network", "datasets", "proposals", "proposal_source", "workers", "max_frames"}
+               "network", "datasets", "proposals", "proposal_source", "workers", "max_frames",
+               "widths", "score_data", "frustums"}
 
 
 def deep_merge(base: Any, over: Any) -> Any:
@@ -48,8 +55,10 @@ def deep_merge(base: Any, over: Any) -> Any:
     return copy.deepcopy(over)
 
 
-def _load_raw(path: Path, seen: tuple[Path, ...]) -> dict[str, Any]:
+def _load_raw(path: Path, seen: tuple[Path, ...], lineage: list[str] | None = None) -> dict[str, Any]:
     path = path.resolve()
+    if lineage is not None:
+        lineage.append(path.name)
     if path in seen:
         raise ValueError(f"recipe inheritance loops through {path}")
     if not path.is_file():
@@ -59,9 +68,10 @@ def _load_raw(path: Path, seen: tuple[Path, ...]) -> dict[str, Any]:
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: not valid JSON ({e})") from e
     parent = d.pop("inherits", None)
-    if parent is None:
-        return d
-    return deep_merge(_load_raw((path.parent / parent), seen + (path,)), d)
+    more = d.pop("append_phases", [])
+    out = d if parent is None else deep_merge(_load_raw((path.parent / parent), seen + (path,), lineage), d)
+    out["phases"] = list(out.get("phases", [])) + list(more)
+    return out
 
 
 def resolve_path(name: str | Path) -> Path:
@@ -78,9 +88,10 @@ def resolve_path(name: str | Path) -> Path:
 
 def load_recipe(path: str | Path) -> dict[str, Any]:
     """The resolved recipe (inheritance applied, checked); ``sha256`` holds the hash of its
-    resolved content and ``file`` its file name."""
+    resolved content, ``file`` its file name and ``lineage`` the names of it and its bases."""
     p = resolve_path(path)
-    r = _load_raw(p, ())
+    lineage: list[str] = []
+    r = _load_raw(p, (), lineage)
     r.setdefault("datasets", {})
     r.setdefault("frustums", {})
     r.setdefault("defaults", {})
@@ -89,12 +100,14 @@ def load_recipe(path: str | Path) -> dict[str, Any]:
     check(r)
     r["sha256"] = sha256_json({k: v for k, v in r.items() if k not in ("comment", "description")})
     r["file"] = p.name
+    r["lineage"] = lineage  # this file, then the files it inherits from
     return r
 
 
 def check(r: dict[str, Any]) -> None:
     """Refuse a recipe whose phases name unknown phases, data or settings (one clear error)."""
     names: list[str] = []
+    all_names = {ph.get("name") for ph in r["phases"]}
     for ph in r["phases"]:
         name = ph.get("name")
         if not name or name in names:
@@ -113,8 +126,10 @@ def check(r: dict[str, Any]) -> None:
             if ph.get("proposal_source", "geometric") not in BUILTIN_PROPOSAL_SOURCES:
                 raise ValueError(f"phase {name}: proposal_source must be one of {BUILTIN_PROPOSAL_SOURCES}")
             classifier_train_config(r, ph)  # unknown ClassifierTrainConfig keys fail here
+        elif ph.get("kind") == "prune":
+            _check_prune(r, ph, names)
         elif ph.get("kind", "network") != "network":
-            raise ValueError(f"phase {name}: kind must be 'network' or 'classifier', not {ph['kind']!r}")
+            raise ValueError(f"phase {name}: kind must be 'network', 'classifier' or 'prune', not {ph['kind']!r}")
         else:
             if ph.get("init") is not None and ph["init"] not in names:
                 raise ValueError(f"phase {name}: init {ph['init']!r} is not an earlier phase")
@@ -125,7 +140,9 @@ def check(r: dict[str, Any]) -> None:
                 raise ValueError(f"phase {name}: no train_data")
             if ph.get("keep", "best") not in ("best", "last"):
                 raise ValueError(f"phase {name}: keep must be 'best' or 'last'")
-            phase_train_config(r, ph)  # unknown TrainConfig keys fail here
+            teacher = phase_train_config(r, ph).teacher  # unknown TrainConfig keys fail here
+            if teacher in all_names and teacher not in names:
+                raise ValueError(f"phase {name}: teacher {teacher!r} is not an earlier phase")
         names.append(name)
     for fname, f in r["frustums"].items():
         if f.get("dataset") not in r["datasets"]:
@@ -133,6 +150,25 @@ def check(r: dict[str, Any]) -> None:
     for fname, ph_name in r.get("exports", {}).items():
         if ph_name not in names:
             raise ValueError(f"export {fname}: {ph_name!r} is not a phase")
+
+
+def _check_prune(r: dict[str, Any], ph: dict[str, Any], names: list[str]) -> None:
+    from .prune import PRUNABLE
+
+    name = ph["name"]
+    if ph.get("network") not in names:
+        raise ValueError(f"phase {name}: network {ph.get('network')!r} is not an earlier phase")
+    widths = ph.get("widths")
+    if not isinstance(widths, dict) or not widths:
+        raise ValueError(f"phase {name}: widths must map PointNet names to channel counts")
+    for k, w in widths.items():
+        if k not in PRUNABLE or not isinstance(w, int) or w < 1:
+            raise ValueError(f"phase {name}: width {k}={w!r}: expected a positive integer for one of {sorted(PRUNABLE)}")
+    if not ph.get("score_data"):
+        raise ValueError(f"phase {name}: no score_data")
+    for f in ph["score_data"]:
+        if f not in r["frustums"]:
+            raise ValueError(f"phase {name}: unknown frustum set {f!r}")
 
 
 def phase(r: dict[str, Any], name: str) -> dict[str, Any]:

@@ -19,7 +19,7 @@ import json
 import shutil
 import time
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -32,7 +32,8 @@ from .recipe import classifier_train_config, deep_merge, phase_train_config
 
 #: bump when the training code changes what a phase computes from the same inputs
 PHASE_CODE_VERSION = 1
-_RUN_FILES = ("checkpoint.pt", "weights.pt", "best.pt", "result.json", "val_metrics.json", "classifier.pt")
+_RUN_FILES = ("checkpoint.pt", "weights.pt", "best.pt", "result.json", "val_metrics.json", "classifier.pt",
+              "pruned.pt", "adopted.pt")
 
 
 class Stopped(Exception):
@@ -118,9 +119,13 @@ def run_network_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_roo
     va_sets, va_keys = _frustum_sets(r, [ph["val_data"]], data_root, cache, cfg, env, say) \
         if ph.get("val_data") else ([None], [None])
     parents = _parents(out, [ph["init"]] if ph.get("init") else [])
+    phase_names = {p["name"] for p in r["phases"]}
+    teacher = _parents(out, [cfg.teacher]) if cfg.teacher and cfg.teacher in phase_names else []
     key = sha256_json({"phase": {k: v for k, v in ph.items() if k != "comment"}, "train_config": cfg.to_dict(),
-                       "frustums": tr_keys + va_keys, "parents": [p["sha256"] for p in parents],
+                       "frustums": tr_keys + va_keys, "parents": [p["sha256"] for p in parents + teacher],
                        "code": PHASE_CODE_VERSION})
+    if teacher:  # after the key: the key holds the teacher's sha256, not where this run directory is
+        cfg = replace(cfg, teacher=str(out / teacher[0]["file"]))
     d = out / ph["name"]
     if _is_done(out, ph["name"], key):
         say(f"phase {ph['name']}: done (result {phase_result(out, ph['name'])['file']}, key matches); skipped")
@@ -128,7 +133,7 @@ def run_network_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_roo
     resume = _on_rank0_first(env, lambda: _prepare_phase_dir(d, key, say) if env.is_main else
                              (d / "checkpoint.pt").is_file())
     data_sets = sorted({r["frustums"][n]["dataset"] for n in list(ph["train_data"]) + [ph.get("val_data")] if n})
-    prov = make_provenance(ph["name"], recipe=r["file"], recipe_sha256=r["sha256"], parents=parents,
+    prov = make_provenance(ph["name"], recipe=r["file"], recipe_sha256=r["sha256"], parents=parents + teacher,
                            data=[{**dataset_identity(data_root / n), "path": n} for n in data_sets],
                            world_size=env.world_size, phase_key=key, seed=int(ph.get("seed", 0)))
     train_ds = tr_sets[0] if len(tr_sets) == 1 else fds.concat(tr_sets)
@@ -143,6 +148,46 @@ def run_network_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_roo
         raise Stopped(ph["name"])
     return _on_rank0_first(env, lambda: _write_result(d, ph.get("keep", "best"), key, time.time() - t0)
                            if env.is_main else phase_result(out, ph["name"]))
+
+
+def run_prune_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_root: Path,
+                    say: Callable[[str], None]) -> dict[str, Any]:
+    """Prune phase ``network``'s weights to ``widths`` (:mod:`.prune`), channels scored on
+    ``frustums`` frustums of each of the ``score_data`` sets; writes ``pruned.pt``."""
+    from ..model.io import load_weights, save_weights
+    from .prune import prune_on, pruned_meta
+
+    env = ddp.current()
+    cfg = phase_train_config(r, {})
+    sets, set_keys = _frustum_sets(r, list(ph["score_data"]), data_root, out / "cache", cfg, env, say)
+    parents = _parents(out, [ph["network"]])
+    key = sha256_json({"phase": {k: v for k, v in ph.items() if k != "comment"}, "frustums": set_keys,
+                       "parents": [p["sha256"] for p in parents], "code": PHASE_CODE_VERSION})
+    d = out / ph["name"]
+    if not env.is_main:
+        ddp.barrier(env)
+        return phase_result(out, ph["name"]) or {}
+    try:
+        if _is_done(out, ph["name"], key):
+            say(f"phase {ph['name']}: done (key matches); skipped")
+            return phase_result(out, ph["name"]) or {}
+        _prepare_phase_dir(d, key, say)
+        t0 = time.time()
+        src = out / parents[0]["file"]
+        model, meta = load_weights(src)
+        pruned, _ = prune_on(model, sets, dict(ph["widths"]), int(ph.get("frustums", 600)), int(ph.get("seed", 0)))
+        prov = make_provenance(ph["name"], recipe=r["file"], recipe_sha256=r["sha256"], parents=parents,
+                               data=[], phase_key=key, seed=int(ph.get("seed", 0)))
+        meta = {**pruned_meta(meta, src, ph["widths"]), "phase": ph["name"], "recipe": r["file"]}
+        save_weights(pruned, d / "pruned.pt", meta=meta, provenance=prov)
+        say(f"phase {ph['name']}: {sum(p.numel() for p in model.parameters()):,} -> "
+            f"{sum(p.numel() for p in pruned.parameters()):,} parameters")
+        res = {"file": "pruned.pt", "sha256": sha256_file(d / "pruned.pt"), "phase_key": key,
+               "seconds": round(time.time() - t0, 1)}
+        (d / "result.json").write_text(json.dumps(res, indent=1))
+        return res
+    finally:
+        ddp.barrier(env)
 
 
 def _write_result(d: Path, keep: str, key: str, seconds: float) -> dict[str, Any]:
@@ -242,6 +287,8 @@ def run_recipe(r: dict[str, Any], out: str | Path, data_root: str | Path, only: 
             raise Stopped(ph["name"])
         if ph.get("kind", "network") == "classifier":
             res = run_classifier_phase(r, ph, out, data_root, say)
+        elif ph.get("kind") == "prune":
+            res = run_prune_phase(r, ph, out, data_root, say)
         else:
             res = run_network_phase(r, ph, out, data_root, device, left, say)
         results.append({"phase": ph["name"], **(res or {})})
@@ -260,3 +307,36 @@ def export(r: dict[str, Any], out: str | Path, dest: str | Path, say: Callable[[
         say(f"exported {ph_name}/{res['file']} -> {target}")
         written.append(target)
     return written
+
+
+def adopt(r: dict[str, Any], out: str | Path, files: list[Path], say: Callable[[str], None] = print) -> list[str]:
+    """Take weights files written by the recipe runner (the packaged ones, say) as the results
+    of the phases their provenance names, where those phases have no result in ``out``: the
+    phases after them can then run without training everything before. A file's provenance
+    must name this recipe (or one it inherits) and one of its phases; its phase key is kept, so
+    a full run still retrains a phase whose inputs differ. Returns the adopted phases."""
+    from ..model.io import read_blob
+
+    out = Path(out)
+    names = {ph["name"] for ph in r["phases"]}
+    adopted = []
+    for f in map(Path, files):
+        blob = read_blob(f)
+        prov = (blob.get("meta") or {}).get("provenance") or blob.get("provenance") or {}
+        ph_name = str(prov.get("phase"))
+        if prov.get("recipe") not in r.get("lineage", [r["file"]]) or ph_name not in names or not prov.get("phase_key"):
+            raise ValueError(f"{f}: its provenance names recipe {prov.get('recipe')!r}, phase {ph_name!r}: "
+                             f"not a phase of {r['file']} (or a recipe it inherits) written by the recipe runner")
+        if phase_result(out, ph_name) is not None:
+            say(f"{f}: phase {ph_name} already has a result in {out}; not adopted")
+            continue
+        d = out / ph_name
+        d.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(f, d / "adopted.pt")
+        (d / "phase.json").write_text(json.dumps({"phase_key": prov["phase_key"]}, indent=1))
+        res = {"file": "adopted.pt", "sha256": sha256_file(d / "adopted.pt"), "phase_key": prov["phase_key"],
+               "seconds": 0.0, "adopted_from": str(f)}
+        (d / "result.json").write_text(json.dumps(res, indent=1))
+        say(f"adopted {f} as the result of phase {ph_name}")
+        adopted.append(ph_name)
+    return adopted
