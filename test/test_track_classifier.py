@@ -190,3 +190,17 @@ def test_planning_doubts_a_track_by_its_own_score_not_the_class_probability():
     assert (without_doubtful(grid, [ghost]).data == -1).any()
     legacy = SceneObject(1, "table", 0.3, **box)  # saved before track scores: its score stands in
     assert (without_doubtful(grid, [legacy]).data == -1).any()
+
+
+def test_fitting_cli_refuses_bad_options_and_a_missing_network(tmp_path, capsys):
+    import argparse
+
+    from shape_detector.evaluation import track_classifier_cli as cli
+
+    parser = argparse.ArgumentParser()
+    cli.configure_parser(parser)
+    assert cli.main(parser.parse_args(["--sequences", "1", "--folds", "2", "-o", str(tmp_path / "t.json")])) == 2
+    assert "--sequences" in capsys.readouterr().err
+    args = parser.parse_args(["--weights", str(tmp_path / "none.pt"), "-o", str(tmp_path / "t.json")])
+    assert cli.main(args) == 2
+    assert "none.pt" in capsys.readouterr().err and not (tmp_path / "t.json").exists()

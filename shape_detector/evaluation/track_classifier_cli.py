@@ -2,7 +2,7 @@
 
 Renders ``--sequences`` walk-throughs (seeds ``--seed``.., default 2000..: no evaluation uses
 them; ``evaluate-scene`` uses 1000.., ``evaluate-ar`` 101..), runs the detector (the
-``realtime`` defaults) on every frame, builds each map without a track classifier, and takes
+``realtime`` defaults; ``--weights`` for another network than the packaged one) on every frame, builds each map without a track classifier, and takes
 every track the final map publishes as one example: features
 (:func:`~shape_detector.scene.track_classifier.tracks_features`) and the class of the labelled
 object it overlaps (3D IoU >= 0.25, any class) or background. Objects glimpsed in fewer than 3
@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from ..classes import CLASSES
+from ..config_cli import add_detector_flags, config_from_args
 from ..scene.track_classifier import OUTPUTS, default_path, fit, tracks_features
 
 #: L2 weights tried by the cross-validation
@@ -85,6 +86,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--processes", type=int, default=2, metavar="N", help="walk-throughs in N worker processes")
     p.add_argument("-o", "--out", default=str(default_path()),
                    help="weights file to write (default: the packaged one)")
+    add_detector_flags(p, "realtime", only=("weights",))
 
 
 def main(args: argparse.Namespace) -> int:
@@ -93,7 +95,6 @@ def main(args: argparse.Namespace) -> int:
         print("shape-detector train-track-classifier: need --sequences >= --folds >= 2, --frames and "
               "--processes >= 1", file=sys.stderr)
         return 2
-    from ..detector_config import preset
     from ..digests import sha256_file
     from ..model.io import default_weights_path
     from .parallel import map_seeds
@@ -101,7 +102,12 @@ def main(args: argparse.Namespace) -> int:
     t0 = time.time()
     seeds = list(range(args.seed, args.seed + args.sequences))
     xs, ys = [], []
-    for seed, (x, y) in zip(seeds, map_seeds(seed_examples, seeds, preset("realtime"), args.processes,
+    det_config = config_from_args(args)
+    weights = Path(det_config.weights) if det_config.weights else default_weights_path()
+    if not weights.is_file():
+        print(f"shape-detector train-track-classifier: no weights file {weights}", file=sys.stderr)
+        return 2
+    for seed, (x, y) in zip(seeds, map_seeds(seed_examples, seeds, det_config, args.processes,
                                              frames=args.frames)):
         xs.append(x)
         ys.append(y)
@@ -113,10 +119,10 @@ def main(args: argparse.Namespace) -> int:
     x, y = np.concatenate(xs), np.concatenate(ys)
     meta = {"command": "shape-detector train-track-classifier " + " ".join(
                 f"--{k.replace('_', '-')} {v}" for k, v in sorted(vars(args).items())
-                if k in ("sequences", "frames", "seed", "folds")),
+                if k in ("sequences", "frames", "seed", "folds")) + (f" --weights {weights}" if det_config.weights else ""),
             "seeds": [seeds[0], seeds[-1]], "frames": args.frames, "examples": int(len(y)),
             "examples_per_output": {o: int((y == i).sum()) for i, o in enumerate(OUTPUTS)},
-            "detector_weights_sha256": sha256_file(default_weights_path()), "detector_preset": "realtime",
+            "detector_weights_sha256": sha256_file(weights), "detector_preset": "realtime",
             "l2": best["l2"], "cross_validation": cv, "date": time.strftime("%Y-%m-%d")}
     model = fit(x, y, best["l2"], meta)
     model.meta["train_accuracy"] = float((model.probabilities(x).argmax(1) == y).mean())
