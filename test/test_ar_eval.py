@@ -80,13 +80,17 @@ def test_cli_takes_the_detector_flags(tmp_path: Path, capsys: pytest.CaptureFixt
     assert "missing.pt" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         p.parse_args(["--max-objects", "0"])  # refused with the reason, as the node's parameters are
+    args = p.parse_args(["--seeds", "5", "--frames", "2", "--track-classifier", str(tmp_path / "none.json")])
+    assert ar_cli.main(args) == 2
+    assert "none.json" in capsys.readouterr().err
 
 
 @pytest.mark.slow
 def test_detector_map_pipeline(tmp_path: Path) -> None:
     from shape_detector.evaluation.ar_eval import evaluate_walkthrough
 
-    r = evaluate_walkthrough(5, 6, 320, 240, n_rays=300, n_points=300, n_pairs=5, save_map=str(tmp_path / "m.json"))
+    r = evaluate_walkthrough(5, 6, 320, 240, n_rays=300, n_points=300, n_pairs=5, save_map=str(tmp_path / "m.json"),
+                             track_classifier="")
     assert (tmp_path / "m.json").is_file()
     for k in ("ray_within_5cm", "collide_precision", "collide_recall"):
         assert 0.0 <= r[k] <= 1.0

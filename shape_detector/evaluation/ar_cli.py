@@ -52,6 +52,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
                    help="walk-throughs in N worker processes, each with its own detector (default 1: here; "
                    "with more, --workers 1 keeps one core per process)")
     p.add_argument("--save-maps", default=None, help="directory for the detector's maps (map_<seed>.json)")
+    p.add_argument("--track-classifier", default=None,
+                   help="SceneConfig.track_classifier: default (packaged), a weights file, or '' (off)")
     add_detector_flags(p, "realtime")
 
 
@@ -90,9 +92,13 @@ def main(args: argparse.Namespace) -> int:
     if not args.gt_map:
         from ..detector import ShapeDetector
 
+        from ..scene.track_classifier import load_track_classifier
+
         try:
             config = config_from_args(args)
             detector = ShapeDetector(config)  # bad settings or weights refused here, before any walk-through
+            if args.track_classifier is not None:
+                load_track_classifier(args.track_classifier)
         except (FileNotFoundError, ValueError) as e:
             print(f"evaluate-ar: {e}", file=sys.stderr)
             return 2
@@ -101,7 +107,8 @@ def main(args: argparse.Namespace) -> int:
         Path(args.save_maps).mkdir(parents=True, exist_ok=True)
     kw = dict(frames=args.frames, width=args.width, height=args.height, use_gt_map=args.gt_map, n_rays=args.rays,
               n_points=args.points, n_pairs=args.pairs, radius=args.radius, agent_radius=args.agent_radius,
-              save_dir=args.save_maps if args.save_maps and not args.gt_map else None, gt_2d=args.gt_2d)
+              save_dir=args.save_maps if args.save_maps and not args.gt_map else None, gt_2d=args.gt_2d,
+              track_classifier=args.track_classifier)
     t0 = time.perf_counter()
     for seed, r in zip(args.seeds, map_seeds(evaluate_seed, args.seeds, config, args.processes, detector, **kw)):
         rows.append(r)

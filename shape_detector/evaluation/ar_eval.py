@@ -261,12 +261,13 @@ def gt_map(truth: Truth) -> ArScene:
 def evaluate_walkthrough(seed: int, frames: int = 40, width: int = 640, height: int = 480, detector: Any = None,
                          use_gt_map: bool = False, n_rays: int = 2000, n_points: int = 2000, n_pairs: int = 40,
                          radius: float = 0.1, agent_radius: float = 0.2, save_map: str | None = None,
-                         gt_2d: str | None = None) -> dict[str, float]:
+                         gt_2d: str | None = None, track_classifier: str | None = None) -> dict[str, float]:
     """Render walk-through ``seed``, build its map (the detector on every frame fed to a
     ``SceneMap`` with the true poses; or the true scene with ``use_gt_map``) and score the
     queries on it. ``detector``: a ``ShapeDetector`` (the default one when None);
     ``save_map``: write the detector's map as scene JSON there; ``gt_2d``: the frames' true 2D
-    boxes instead of the detector's proposals (:func:`~.runner.detect_walkthrough_frame`)."""
+    boxes instead of the detector's proposals (:func:`~.runner.detect_walkthrough_frame`);
+    ``track_classifier``: ``SceneConfig.track_classifier`` (None: the default)."""
     from ..synth.generate import SynthConfig
     from ..synth.walkthrough import walkthrough
 
@@ -278,14 +279,14 @@ def evaluate_walkthrough(seed: int, frames: int = 40, width: int = 640, height: 
     else:
         from ..ar.scene_data import load_scene
         from ..poses import camera_up
-        from ..scene import SceneMap
+        from ..scene import SceneConfig, SceneMap
         from .runner import detect_walkthrough_frame
 
         if detector is None:
             from ..detector import ShapeDetector
 
             detector = ShapeDetector()
-        smap = SceneMap()
+        smap = SceneMap(SceneConfig() if track_classifier is None else SceneConfig(track_classifier=track_classifier))
         for f, T in zip(wt.frames, wt.poses):
             objs = detect_walkthrough_frame(detector, f, camera_up(T), gt_2d)
             smap.update(objs, T, f.depth, f.K, int(f.stamp_ns))
