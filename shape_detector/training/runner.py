@@ -176,8 +176,10 @@ def run_prune_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_root:
         src = out / parents[0]["file"]
         model, meta = load_weights(src)
         pruned, _ = prune_on(model, sets, dict(ph["widths"]), int(ph.get("frustums", 600)), int(ph.get("seed", 0)))
+        data_sets = sorted({r["frustums"][n]["dataset"] for n in ph["score_data"]})
         prov = make_provenance(ph["name"], recipe=r["file"], recipe_sha256=r["sha256"], parents=parents,
-                               data=[], phase_key=key, seed=int(ph.get("seed", 0)))
+                               data=[{**dataset_identity(data_root / n), "path": n} for n in data_sets],
+                               phase_key=key, seed=int(ph.get("seed", 0)))
         meta = {**pruned_meta(meta, src, ph["widths"]), "phase": ph["name"], "recipe": r["file"]}
         save_weights(pruned, d / "pruned.pt", meta=meta, provenance=prov)
         say(f"phase {ph['name']}: {sum(p.numel() for p in model.parameters()):,} -> "
