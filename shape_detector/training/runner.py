@@ -315,8 +315,9 @@ def adopt(r: dict[str, Any], out: str | Path, files: list[Path], say: Callable[[
     """Take weights files written by the recipe runner (the packaged ones, say) as the results
     of the phases their provenance names, where those phases have no result in ``out``: the
     phases after them can then run without training everything before. A file's provenance
-    must name this recipe (or one it inherits) and one of its phases; its phase key is kept, so
-    a full run still retrains a phase whose inputs differ. Returns the adopted phases."""
+    must name this recipe (or one it inherits) and one of its phases; its phase key is kept
+    (none in reconstructed provenance), so a full run still retrains a phase whose inputs
+    differ. Returns the adopted phases."""
     from ..model.io import read_blob
 
     out = Path(out)
@@ -326,7 +327,8 @@ def adopt(r: dict[str, Any], out: str | Path, files: list[Path], say: Callable[[
         blob = read_blob(f)
         prov = (blob.get("meta") or {}).get("provenance") or blob.get("provenance") or {}
         ph_name = str(prov.get("phase"))
-        if prov.get("recipe") not in r.get("lineage", [r["file"]]) or ph_name not in names or not prov.get("phase_key"):
+        recipe = Path(str(prov.get("recipe"))).name  # older files name the recipe by its path
+        if recipe not in r.get("lineage", [r["file"]]) or ph_name not in names:
             raise ValueError(f"{f}: its provenance names recipe {prov.get('recipe')!r}, phase {ph_name!r}: "
                              f"not a phase of {r['file']} (or a recipe it inherits) written by the recipe runner")
         if phase_result(out, ph_name) is not None:
@@ -335,8 +337,9 @@ def adopt(r: dict[str, Any], out: str | Path, files: list[Path], say: Callable[[
         d = out / ph_name
         d.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(f, d / "adopted.pt")
-        (d / "phase.json").write_text(json.dumps({"phase_key": prov["phase_key"]}, indent=1))
-        res = {"file": "adopted.pt", "sha256": sha256_file(d / "adopted.pt"), "phase_key": prov["phase_key"],
+        key = prov.get("phase_key")  # None in reconstructed provenance: a full run retrains that phase
+        (d / "phase.json").write_text(json.dumps({"phase_key": key}, indent=1))
+        res = {"file": "adopted.pt", "sha256": sha256_file(d / "adopted.pt"), "phase_key": key,
                "seconds": 0.0, "adopted_from": str(f)}
         (d / "result.json").write_text(json.dumps(res, indent=1))
         say(f"adopted {f} as the result of phase {ph_name}")
