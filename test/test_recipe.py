@@ -56,7 +56,7 @@ def test_inheritance_merges_dicts_and_replaces_the_rest(tmp_path):
 
 
 @pytest.mark.parametrize("phases, message", [
-    ([{"name": "a", "train_data": ["nope"]}], "unknown frustum set"),
+    ([{"name": "a", "train_data": ["nope"]}], "not a known frustum set"),
     ([{"name": "a", "init": "b", "train_data": ["gt"]}], "not an earlier phase"),
     ([{"name": "a", "train_data": ["gt"]}, {"name": "a", "train_data": ["gt"]}], "unique"),
     ([{"name": "a", "train_data": ["gt"], "epochs": 3}], "unknown keys"),
@@ -434,7 +434,7 @@ def test_prune_and_distil_phases_run_after_an_adopted_phase(tmp_path, capsys):
     ({"name": "p", "kind": "prune", "network": "a", "score_data": ["gt"], "widths": {"seg": 8}}, "width seg"),
     ({"name": "p", "kind": "prune", "network": "a", "score_data": ["gt"], "widths": {"seg_mlp": 0}}, "positive"),
     ({"name": "p", "kind": "prune", "network": "a", "widths": {"seg_mlp": 8}}, "no score_data"),
-    ({"name": "p", "kind": "prune", "network": "a", "score_data": ["nope"], "widths": {"seg_mlp": 8}}, "unknown frustum"),
+    ({"name": "p", "kind": "prune", "network": "a", "score_data": ["nope"], "widths": {"seg_mlp": 8}}, "not a known frustum"),
     ({"name": "p", "train_data": ["gt"], "train": {"teacher": "q"}}, "teacher 'q' is not an earlier phase"),
 ])
 def test_bad_prune_and_teacher_phases_are_refused(tmp_path, phase, message):

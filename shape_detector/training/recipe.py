@@ -116,13 +116,8 @@ def check(r: dict[str, Any]) -> None:
         if bad:
             raise ValueError(f"phase {name}: unknown keys {sorted(bad)}")
         if ph.get("kind", "network") == "classifier":
-            if ph.get("network") not in names:
-                raise ValueError(f"phase {name}: network {ph.get('network')!r} is not an earlier phase")
-            if not ph.get("datasets"):
-                raise ValueError(f"phase {name}: no datasets")
-            for d in ph["datasets"]:
-                if d not in r["datasets"]:
-                    raise ValueError(f"phase {name}: unknown data set {d!r}")
+            _refs(ph, "network", [ph.get("network")], names, "an earlier phase")
+            _refs(ph, "datasets", ph.get("datasets"), r["datasets"], "a known data set")
             if ph.get("proposal_source", "geometric") not in BUILTIN_PROPOSAL_SOURCES:
                 raise ValueError(f"phase {name}: proposal_source must be one of {BUILTIN_PROPOSAL_SOURCES}")
             classifier_train_config(r, ph)  # unknown ClassifierTrainConfig keys fail here
@@ -133,11 +128,9 @@ def check(r: dict[str, Any]) -> None:
         else:
             if ph.get("init") is not None and ph["init"] not in names:
                 raise ValueError(f"phase {name}: init {ph['init']!r} is not an earlier phase")
-            for f in list(ph.get("train_data", [])) + [ph.get("val_data")]:
-                if f is not None and f not in r["frustums"]:
-                    raise ValueError(f"phase {name}: unknown frustum set {f!r}")
-            if not ph.get("train_data"):
-                raise ValueError(f"phase {name}: no train_data")
+            _refs(ph, "train_data", ph.get("train_data"), r["frustums"], "a known frustum set")
+            if ph.get("val_data") is not None:
+                _refs(ph, "val_data", [ph["val_data"]], r["frustums"], "a known frustum set")
             if ph.get("keep", "best") not in ("best", "last"):
                 raise ValueError(f"phase {name}: keep must be 'best' or 'last'")
             teacher = phase_train_config(r, ph).teacher  # unknown TrainConfig keys fail here
@@ -156,19 +149,23 @@ def _check_prune(r: dict[str, Any], ph: dict[str, Any], names: list[str]) -> Non
     from .prune import PRUNABLE
 
     name = ph["name"]
-    if ph.get("network") not in names:
-        raise ValueError(f"phase {name}: network {ph.get('network')!r} is not an earlier phase")
+    _refs(ph, "network", [ph.get("network")], names, "an earlier phase")
     widths = ph.get("widths")
     if not isinstance(widths, dict) or not widths:
         raise ValueError(f"phase {name}: widths must map PointNet names to channel counts")
     for k, w in widths.items():
         if k not in PRUNABLE or not isinstance(w, int) or w < 1:
             raise ValueError(f"phase {name}: width {k}={w!r}: expected a positive integer for one of {sorted(PRUNABLE)}")
-    if not ph.get("score_data"):
-        raise ValueError(f"phase {name}: no score_data")
-    for f in ph["score_data"]:
-        if f not in r["frustums"]:
-            raise ValueError(f"phase {name}: unknown frustum set {f!r}")
+    _refs(ph, "score_data", ph.get("score_data"), r["frustums"], "a known frustum set")
+
+
+def _refs(ph: dict[str, Any], key: str, items: Any, known: Any, what: str) -> None:
+    """Refuse a phase whose ``key`` lists nothing or something not in ``known``."""
+    if not items:
+        raise ValueError(f"phase {ph['name']}: no {key}")
+    for x in items:
+        if x not in known:
+            raise ValueError(f"phase {ph['name']}: {key} {x!r} is not {what}")
 
 
 def phase(r: dict[str, Any], name: str) -> dict[str, Any]:
