@@ -314,6 +314,10 @@ def test_cli_refuses_mixed_options_and_unknown_phases(tmp_path, capsys):
     assert "no phase" in capsys.readouterr().err
     assert _run_cli(["--recipe", "no_such_recipe"]) == 2
     assert "shipped" in capsys.readouterr().err  # names the packaged recipes
+    # weights of another recipe's phase are not adopted, and nothing runs
+    assert _run_cli(["--recipe", str(TINY), "--out", str(tmp_path / "o"), "--data-root", str(tmp_path / "d"),
+                     "--adopt", str(WEIGHTS / "default.pt")]) == 2
+    assert "--adopt" in capsys.readouterr().err and not (tmp_path / "d").exists()
 
 
 def test_a_spent_time_budget_stops_before_the_next_phase(tmp_path):

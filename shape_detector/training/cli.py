@@ -101,13 +101,16 @@ def main_recipe(args: argparse.Namespace) -> int:
     out = args.out or Path("runs") / Path(r["file"]).stem
     say = (lambda s: print(s, flush=True)) if env.is_main else (lambda s: None)
     say(f"recipe {r['file']} (sha256 {r['sha256'][:12]}): {len(r['phases'])} phases -> {out}")
-    if args.adopt and env.is_main:
-        try:
-            adopt(r, out, args.adopt, say)
-        except (OSError, ValueError) as e:
-            print(f"shape-detector train: --adopt: {e}", file=sys.stderr)
+    if args.adopt:
+        failed = False
+        if env.is_main:
+            try:
+                adopt(r, out, args.adopt, say)
+            except (OSError, ValueError) as e:
+                print(f"shape-detector train: --adopt: {e}", file=sys.stderr)
+                failed = True
+        if ddp.broadcast_flag(env, failed):  # every rank stops, none waits for rank 0
             return 2
-    ddp.barrier(env)
     try:
         results = run_recipe(r, out, args.data_root, args.phase, device, args.max_minutes, say)
     except Stopped as e:
