@@ -91,7 +91,6 @@ def main(args: argparse.Namespace) -> int:
     config = detector = None
     if not args.gt_map:
         from ..detector import ShapeDetector
-
         from ..scene.track_classifier import load_track_classifier
 
         try:

@@ -2,8 +2,9 @@
 
 Renders ``--sequences`` walk-throughs (seeds ``--seed``.., default 2000..: no evaluation uses
 them; ``evaluate-scene`` uses 1000.., ``evaluate-ar`` 101..), runs the detector (the
-``realtime`` defaults; ``--weights`` for another network than the packaged one) on every frame, builds each map without a track classifier, and takes
-every track the final map publishes as one example: features
+``realtime`` defaults; ``--weights`` for another network than the packaged one) on every
+frame, builds each map without a track classifier, and takes every track the final map
+publishes as one example: features
 (:func:`~shape_detector.scene.track_classifier.tracks_features`) and the class of the labelled
 object it overlaps (3D IoU >= 0.25, any class) or background. Objects glimpsed in fewer than 3
 frames give no example (``evaluate-scene`` ignores them). The L2 weight is chosen by
@@ -95,19 +96,25 @@ def main(args: argparse.Namespace) -> int:
         print("shape-detector train-track-classifier: need --sequences >= --folds >= 2, --frames and "
               "--processes >= 1", file=sys.stderr)
         return 2
+    from ..detector import ShapeDetector
     from ..digests import sha256_file
-    from ..model.io import default_weights_path
     from .parallel import map_seeds
 
     t0 = time.time()
     seeds = list(range(args.seed, args.seed + args.sequences))
     xs, ys = [], []
     det_config = config_from_args(args)
-    weights = Path(det_config.weights) if det_config.weights else default_weights_path()
-    if not weights.is_file():
-        print(f"shape-detector train-track-classifier: no weights file {weights}", file=sys.stderr)
+    try:  # bad weights refused here, before any walk-through; the detector resolves the file
+        detector = ShapeDetector(det_config)
+    except (FileNotFoundError, ValueError) as e:
+        print(f"shape-detector train-track-classifier: {e}", file=sys.stderr)
         return 2
-    for seed, (x, y) in zip(seeds, map_seeds(seed_examples, seeds, det_config, args.processes,
+    weights = detector.predictor.weights_path
+    if weights is None:
+        print("shape-detector train-track-classifier: no network weights (none packaged, no --weights)",
+              file=sys.stderr)
+        return 2
+    for seed, (x, y) in zip(seeds, map_seeds(seed_examples, seeds, det_config, args.processes, detector,
                                              frames=args.frames)):
         xs.append(x)
         ys.append(y)

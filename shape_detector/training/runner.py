@@ -158,7 +158,7 @@ def run_prune_phase(r: dict[str, Any], ph: dict[str, Any], out: Path, data_root:
     from .prune import prune_on, pruned_meta
 
     env = ddp.current()
-    cfg = phase_train_config(r, {})
+    cfg = phase_train_config(r, {})  # the recipe's defaults: the extraction and point count its network phases use
     sets, set_keys = _frustum_sets(r, list(ph["score_data"]), data_root, out / "cache", cfg, env, say)
     parents = _parents(out, [ph["network"]])
     key = sha256_json({"phase": {k: v for k, v in ph.items() if k != "comment"}, "frustums": set_keys,
